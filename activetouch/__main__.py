@@ -1,0 +1,3 @@
+from activetouch.service.cli import main
+
+raise SystemExit(main())

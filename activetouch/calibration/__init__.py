@@ -1,0 +1,1 @@
+"""Tactile zero offsets and thresholds, finger zeroing, hand-mount and object frames."""

@@ -1,0 +1,152 @@
+"""One source of truth for parameters: typed sections, loaded from TOML, overridable on the CLI.
+
+Each part owns a section dataclass here; `Config` composes them. `load_config(path, overrides)`
+validates types and names and raises `ConfigError` naming the offending key.
+Defaults are the papers' values (Zhang et al. IROS 2016/2017) unless stated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import tomllib
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from activetouch.errors import ConfigError
+
+
+@dataclass
+class RecognitionConfig:
+    # Triangle parameterisation: three of l0, l1, l2 (sides, l0 largest) and a0, a1, a2 (angles).
+    parameterisation: str = "l0,l1,a0"
+    bins: int = 10  # per histogram dimension
+    # Degenerate triangles are dropped: a side shorter than this (duplicate points) ...
+    min_side_m: float = 1e-4
+    # ... or an angle smaller than this (collinear points).
+    min_angle_deg: float = 1.0
+    classifier: str = "svm"  # svm | nn_inner | nn_intersection
+    # Partial-observation training samples per object (random subsets of its grasps).
+    partial_samples_per_object: int = 200
+    partial_min_grasps: int = 1
+    partial_max_grasps: int = 30
+    seed: int = 0
+
+
+@dataclass
+class ObservationConfig:
+    granularity: str = "triangle"  # triangle (the paper) | grasp
+    translation_cell_m: float = 0.06
+    quaternion_cell: float = 0.05
+    triangle_cell: float = 0.08
+
+
+@dataclass
+class PlannerConfig:
+    policy: str = "tree"  # tree | greedy | random
+    horizon: int = 5
+    simulations: int = 20
+    exploration_c: float = 1.0
+    lam: float = 0.5  # weight of movement cost against misclassification (Eq. 1)
+    replan_every_grasp: bool = False
+
+
+@dataclass
+class Config:
+    recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _coerce(value, args[0], key)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
+            return value.lower() in ("true", "1", "yes")
+        raise ConfigError(f"{key}: expected true/false, got {value!r}")
+    if tp is int:
+        if isinstance(value, bool):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        try:
+            if isinstance(value, str):
+                return int(value, 0)
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}") from None
+    if tp is float:
+        if isinstance(value, bool):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{key}: expected a number, got {value!r}") from None
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    if origin is list:
+        if not isinstance(value, list):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        (inner,) = typing.get_args(tp) or (Any,)
+        return [_coerce(v, inner, f"{key}[{i}]") for i, v in enumerate(value)]
+    return value
+
+
+def _apply(obj: Any, data: dict[str, Any], prefix: str) -> None:
+    hints = typing.get_type_hints(type(obj))
+    names = {f.name for f in dataclasses.fields(obj)}
+    for k, v in data.items():
+        key = f"{prefix}{k}"
+        if k not in names:
+            raise ConfigError(f"unknown setting {key!r} (known: {', '.join(sorted(names))})")
+        cur = getattr(obj, k)
+        if dataclasses.is_dataclass(cur):
+            if not isinstance(v, dict):
+                raise ConfigError(f"{key}: expected a table of settings")
+            _apply(cur, v, key + ".")
+        else:
+            setattr(obj, k, _coerce(v, hints[k], key))
+
+
+def load_config(path: str | os.PathLike | None = None, overrides: list[str] | None = None) -> Config:
+    """Defaults, then the TOML file at `path`, then `section.key=value` overrides."""
+    cfg = Config()
+    if path is not None:
+        p = Path(path)
+        try:
+            data = tomllib.loads(p.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"{p}: no such config file") from None
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"{p}: not valid TOML: {e}") from None
+        _apply(cfg, data, "")
+    for item in overrides or []:
+        if "=" not in item:
+            raise ConfigError(f"override {item!r}: expected section.key=value")
+        dotted, raw = item.split("=", 1)
+        parts = dotted.strip().split(".")
+        try:
+            value: Any = tomllib.loads(f"v = {raw}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = raw  # a bare word is a string
+        nested: dict[str, Any] = {parts[-1]: value}
+        for part in reversed(parts[:-1]):
+            nested = {part: nested}
+        _apply(cfg, nested, "")
+    return cfg
+
+
+def as_dict(cfg: Any) -> dict[str, Any]:
+    return dataclasses.asdict(cfg)

@@ -1,0 +1,1 @@
+"""Hardware drivers behind the Hand / Arm interfaces (ReFlex over UDP or serial, Baxter bridge)."""

@@ -1,0 +1,34 @@
+"""Where activetouch keeps its data: the object library, datasets, models and reports.
+
+`--data DIR` on the CLI wins, then the ACTIVETOUCH_HOME environment variable, then the user
+data directory of the platform (e.g. ~/.local/share/activetouch).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import platformdirs
+
+
+def data_dir(explicit: str | os.PathLike | None = None) -> Path:
+    if explicit:
+        root = Path(explicit)
+    elif os.environ.get("ACTIVETOUCH_HOME"):
+        root = Path(os.environ["ACTIVETOUCH_HOME"])
+    else:
+        root = Path(platformdirs.user_data_dir("activetouch"))
+    return root.expanduser()
+
+
+def objects_dir(root: Path) -> Path:
+    return root / "objects"
+
+
+def datasets_dir(root: Path) -> Path:
+    return root / "datasets"
+
+
+def models_dir(root: Path) -> Path:
+    return root / "models"

@@ -1,0 +1,71 @@
+"""`activetouch` / `python -m activetouch`: the command-line entry point.
+
+Each command lives in its own module that exposes `register(subparsers)`; the module adds its
+parser and sets `func(args) -> int`. Modules are imported lazily so `--help` stays fast.
+User mistakes (`ActiveTouchError`) print one line and exit 2; they never show a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from rich.console import Console
+
+from activetouch import __version__
+from activetouch.errors import ActiveTouchError
+
+# Modules that register sub-commands, in the order `--help` lists them.
+COMMAND_MODULES: tuple[str, ...] = ("activetouch.service.bench_command",)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="activetouch",
+        description="Recognise objects by touch: ReFlex hand, MCTS pose selection, PyBullet twin.",
+    )
+    parser.add_argument("--version", action="version", version=f"activetouch {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def add_common_options(p: argparse.ArgumentParser) -> None:
+    """Options every command that touches stored data takes."""
+    p.add_argument(
+        "--data",
+        metavar="DIR",
+        default=None,
+        help="data directory (default: $ACTIVETOUCH_HOME or the user data directory)",
+    )
+    p.add_argument("--config", metavar="FILE", default=None, help="TOML configuration file")
+    p.add_argument(
+        "--set",
+        metavar="SECTION.KEY=VALUE",
+        action="append",
+        default=[],
+        dest="overrides",
+        help="override one configuration value (repeatable)",
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except ActiveTouchError as e:
+        Console(stderr=True).print(f"[bold red]error:[/] {e}", highlight=False)
+        return 2
+    except KeyboardInterrupt:
+        Console(stderr=True).print("interrupted")
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
