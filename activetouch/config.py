@@ -55,10 +55,26 @@ class PlannerConfig:
 
 
 @dataclass
+class GridConfig:
+    """Training grid (paper Alg. 1): wrist poses on an ellipsoid around the object."""
+
+    step_deg: float = 25.0  # ring and azimuth step (authors: 25 in simulation, 45 on the robot)
+    margin_m: float = 0.06  # palm pad distance beyond the object's half extent
+    palm_offset_m: float = 0.0896  # palm pad height above the hand frame origin
+    min_elevation_deg: float = 0.0  # lowest ring; poses lower than this meet the table
+    rolls_deg: list[float] = field(default_factory=lambda: [0.0, 90.0])
+    # One preshape per nominal pose: actions are wrist poses only, so a pose with two preshapes
+    # would be two observations under one action. Add 0.8 (spherical) as its own grid if wanted.
+    preshape: float = 0.0
+    min_wrist_height_m: float = 0.03  # hand frame origin above the table top
+
+
+@dataclass
 class Config:
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
 
 
 def _coerce(value: Any, tp: Any, key: str) -> Any:
@@ -120,7 +136,9 @@ def _apply(obj: Any, data: dict[str, Any], prefix: str) -> None:
             setattr(obj, k, _coerce(v, hints[k], key))
 
 
-def load_config(path: str | os.PathLike | None = None, overrides: list[str] | None = None) -> Config:
+def load_config(
+    path: str | os.PathLike | None = None, overrides: list[str] | None = None
+) -> Config:
     """Defaults, then the TOML file at `path`, then `section.key=value` overrides."""
     cfg = Config()
     if path is not None:

@@ -1,0 +1,84 @@
+"""Training grid of wrist poses around an object (paper Alg. 1, the authors' layout).
+
+Poses lie on an ellipsoid around the object centre in horizontal rings, the palm facing the
+centre (hand +z towards the centre), with wrist-roll variants. Poses whose hand frame would be
+below the table are dropped. Pure math: no simulator, so the real robot uses the same grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from activetouch.config import GridConfig
+
+
+@dataclass(frozen=True)
+class GridPoses:
+    pose_ids: np.ndarray  # (N,) int64, stable ids: resuming a collection skips done ids
+    poses: np.ndarray  # (N, 7) hand frame in the object frame: x y z qx qy qz qw
+    preshapes: np.ndarray  # (N,) rad
+
+    def __len__(self) -> int:
+        return len(self.pose_ids)
+
+
+def look_at_quaternion(direction: np.ndarray, roll: float) -> np.ndarray:
+    """Quaternion (x y z w) of a frame whose +z is `direction`, rolled by `roll` about it.
+
+    Zero roll puts the frame's x axis in the vertical plane containing +z (pointing up where
+    possible), so roll variants are comparable across the grid."""
+    z = np.asarray(direction, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    up = np.array([0.0, 0.0, 1.0])
+    x = up - z * (up @ z)
+    if np.linalg.norm(x) < 1e-6:  # looking straight up or down: any horizontal x will do
+        x = np.array([1.0, 0.0, 0.0]) - z * z[0]
+    x = x / np.linalg.norm(x)
+    y = np.cross(z, x)
+    base = Rotation.from_matrix(np.column_stack([x, y, z]))
+    return (base * Rotation.from_rotvec([0.0, 0.0, roll])).as_quat()
+
+
+def ring_directions(step_deg: float, min_elevation_deg: float) -> np.ndarray:
+    """Unit vectors from the object centre: rings every `step_deg` of elevation up to the top,
+    azimuths spaced about `step_deg` apart along each ring."""
+    dirs: list[np.ndarray] = []
+    elevations = np.arange(min_elevation_deg, 90.0 - 1e-9, step_deg)
+    for el in np.deg2rad(elevations):
+        n_az = max(1, round(360.0 * np.cos(el) / step_deg))
+        for az in np.arange(n_az) * (2 * np.pi / n_az):
+            dirs.append(np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)]))
+    dirs.append(np.array([0.0, 0.0, 1.0]))  # straight from above
+    return np.array(dirs)
+
+
+def training_grid(extents: np.ndarray, cfg: GridConfig) -> GridPoses:
+    """Grid for an object with bounding-box `extents` (x, y, z sizes, metres) standing on the
+    table with its centre at height extents[2] / 2."""
+    ext = np.asarray(extents, dtype=np.float64).reshape(3)
+    if np.any(ext <= 0) or not np.all(np.isfinite(ext)):
+        raise ValueError(f"object extents must be positive, got {ext}")
+    if cfg.step_deg <= 0 or cfg.step_deg > 90:
+        raise ValueError(f"grid step must be in (0, 90] degrees, got {cfg.step_deg}")
+    radii = ext / 2 + cfg.margin_m  # ellipsoid the palm pad lies on
+    poses, preshapes, ids = [], [], []
+    pid = 0
+    for d in ring_directions(cfg.step_deg, cfg.min_elevation_deg):
+        # Point on the ellipsoid along d, then back off so the palm pad (not the hand origin)
+        # sits there; the hand looks at the centre.
+        palm = d / np.sqrt(np.sum((d / radii) ** 2))
+        origin = palm + d * cfg.palm_offset_m
+        for roll in np.deg2rad(cfg.rolls_deg):
+            if origin[2] + ext[2] / 2 >= cfg.min_wrist_height_m:
+                poses.append(np.concatenate([origin, look_at_quaternion(-d, roll)]))
+                preshapes.append(cfg.preshape)
+                ids.append(pid)
+            pid += 1  # ids stay stable when filtering changes
+    return GridPoses(
+        pose_ids=np.asarray(ids, dtype=np.int64),
+        poses=np.asarray(poses, dtype=np.float64).reshape(-1, 7),
+        preshapes=np.asarray(preshapes, dtype=np.float64),
+    )

@@ -1,0 +1,52 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from activetouch.config import GridConfig
+from activetouch.planning.grid import look_at_quaternion, training_grid
+
+
+def test_palm_faces_centre_and_lies_on_ellipsoid():
+    ext = np.array([0.08, 0.12, 0.2])
+    cfg = GridConfig()
+    g = training_grid(ext, cfg)
+    assert len(g) > 20
+    radii = ext / 2 + cfg.margin_m
+    for pose in g.poses:
+        z_axis = Rotation.from_quat(pose[3:]).as_matrix()[:, 2]
+        towards_centre = -pose[:3] / np.linalg.norm(pose[:3])
+        np.testing.assert_allclose(z_axis, towards_centre, atol=1e-9)
+        palm = pose[:3] + z_axis * cfg.palm_offset_m
+        assert np.sum((palm / radii) ** 2) == pytest.approx(1.0, abs=1e-9)
+
+
+def test_rolls_make_distinct_orientations_and_ids_are_unique():
+    g = training_grid(np.array([0.1, 0.1, 0.1]), GridConfig(rolls_deg=[0.0, 90.0]))
+    assert len(np.unique(g.pose_ids)) == len(g)
+    keys = {tuple(np.round(p, 6)) for p in g.poses}
+    assert len(keys) == len(g)
+
+
+def test_poses_below_the_table_are_dropped_but_ids_stay_stable():
+    low = GridConfig(min_elevation_deg=-50.0)
+    full = training_grid(np.array([0.1, 0.1, 0.1]), low)
+    assert np.all(full.poses[:, 2] + 0.05 >= low.min_wrist_height_m)
+    # Same directions, so the ids of kept poses match the default grid's where they overlap.
+    default = training_grid(np.array([0.1, 0.1, 0.1]), GridConfig())
+    assert len(full) >= len(default)
+
+
+def test_finer_step_gives_more_poses():
+    coarse = training_grid(np.array([0.1, 0.1, 0.1]), GridConfig(step_deg=45))
+    fine = training_grid(np.array([0.1, 0.1, 0.1]), GridConfig(step_deg=25))
+    assert len(fine) > len(coarse)
+
+
+def test_bad_extents_are_rejected():
+    with pytest.raises(ValueError):
+        training_grid(np.array([0.1, 0.0, 0.1]), GridConfig())
+
+
+def test_look_at_straight_down_is_well_defined():
+    q = look_at_quaternion(np.array([0.0, 0.0, -1.0]), 0.0)
+    np.testing.assert_allclose(Rotation.from_quat(q).as_matrix()[:, 2], [0, 0, -1], atol=1e-12)

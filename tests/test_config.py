@@ -1,0 +1,45 @@
+import pytest
+
+from activetouch.config import load_config
+from activetouch.errors import ConfigError
+
+
+def test_defaults_are_the_papers():
+    cfg = load_config()
+    assert cfg.planner.exploration_c == 1.0
+    assert cfg.planner.lam == 0.5
+    assert cfg.observation.translation_cell_m == 0.06
+    assert cfg.recognition.bins == 10
+
+
+def test_toml_and_overrides(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text('[planner]\nhorizon = 7\npolicy = "greedy"\n')
+    cfg = load_config(f, ["planner.simulations=50", "grid.rolls_deg=[0.0]"])
+    assert cfg.planner.horizon == 7
+    assert cfg.planner.policy == "greedy"
+    assert cfg.planner.simulations == 50
+    assert cfg.grid.rolls_deg == [0.0]
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[planner]\nhorizon = 'x'\n", "planner.horizon: expected an integer"),
+        ("[planner]\nhorizn = 3\n", "unknown setting 'planner.horizn'"),
+        ("[planner\n", "not valid TOML"),
+        ("planner = 3\n", "planner: expected a table"),
+    ],
+)
+def test_bad_files_name_the_problem(tmp_path, text, message):
+    f = tmp_path / "c.toml"
+    f.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_config(f)
+
+
+def test_missing_file_and_bad_override(tmp_path):
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "nope.toml")
+    with pytest.raises(ConfigError, match=r"expected section\.key=value"):
+        load_config(None, ["planner.horizon"])
