@@ -70,11 +70,47 @@ class GridConfig:
 
 
 @dataclass
+class SimConfig:
+    """PyBullet twin: tactile model, guarded close, hand geometry choices, world."""
+
+    # Tactile model: force = stiffness * penetration of the sensor patch (a compliant skin),
+    # pressure = force * pressure_per_newton + Gaussian noise, contact = pressure > threshold.
+    contact_threshold: float = 20.0  # sensor units above zero offset (ReFlex driver default)
+    noise_std: float = 2.0  # sensor units
+    contact_stiffness_n_per_m: float = 2000.0
+    pressure_per_newton: float = 50.0
+    finger_patch_radius_m: float = 0.01  # contact point -> nearest finger site within this
+    palm_patch_radius_m: float = 0.015
+    # Noise stream: "pose" seeds each grasp from (seed, wrist pose, preshape), so a grasp does
+    # not depend on what ran before (resumable collections repeat exactly); "stream" draws
+    # from one generator per hand seeded once.
+    noise_mode: str = "pose"
+    seed: int = 0
+    # Guarded close (ReFlex: 0.05 rad spool steps, each finger stops at its own first contact).
+    spool_step_rad: float = 0.05
+    substeps: int = 5  # collision checks inside the step where a finger first meets something
+    spool_limit_rad: float = 2.8  # tendon travel limit (tactile_triangles' Gazebo model)
+    flexure_coupling: float = 0.25  # free finger: distal = k * proximal
+    stall_depth_m: float = 0.003  # a link pushed this deep without a sensed contact is blocked
+    preshape_limit_rad: float = 1.6
+    # Distal sensor sites (link frame); the visualiser URDF's by default. tactile_triangles'
+    # Gazebo model: x = [0.0135, 0.0215, 0.0295, 0.0375], z = 0.009 each.
+    distal_sensor_x: list[float] = field(default_factory=lambda: [0.0114, 0.0193, 0.0272, 0.0375])
+    distal_sensor_z: list[float] = field(default_factory=lambda: [0.0129, 0.0129, 0.0129, 0.0073])
+    # World and wrist.
+    table_size_m: list[float] = field(default_factory=lambda: [1.5, 1.5, 0.05])
+    wrist_penetration_tol_m: float = 0.002  # deeper hand/object or hand/table overlap: unreachable
+    execute_step_m: float = 0.01  # collision-check spacing along executed wrist trajectories
+    execute_step_rad: float = 0.05
+
+
+@dataclass
 class Config:
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     grid: GridConfig = field(default_factory=GridConfig)
+    sim: SimConfig = field(default_factory=SimConfig)
 
 
 def _coerce(value: Any, tp: Any, key: str) -> Any:

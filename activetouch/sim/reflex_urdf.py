@@ -1,0 +1,440 @@
+"""The ReFlex hand as a URDF built from the real hand's dimensions, plus its forward kinematics.
+
+Numbers come from /work/shared/hardware-facts.md (reflex-ros-pkg's visualiser URDF and
+tf_geometry.yaml, tactile_triangles' Gazebo model for masses and limits). Joint origins follow
+the visualiser URDF (not tf_geometry.yaml, whose swivel y signs are mirrored): the visualiser is
+what the authors' contact XYZ were expressed in.
+
+Frames (all as in that URDF):
+- hand / base frame: fingers 0 and 1 stand at +x, the thumb at -x, the palm pad faces +z
+  (pad top at z = 0.0896); this is the wrist pose handed to the arm.
+- proximal / distal link frames: the link extends along +x, the tactile face is +z, joints
+  turn about -y, so a positive angle lifts the finger from lying flat (open, 0) towards +z and
+  then over the palm (closed).
+- finger f (message index 0 pointer, 1 middle, 2 thumb) is URDF finger f + 1; fingers 0 and 1
+  sit on swivels that one motor turns by +preshape and -preshape about -z.
+
+Sensor sites are sensor-frame origins (what the authors used as contact XYZ): 5 on the proximal
+link, 4 on the distal link (the last one, the fingertip, tilted about y), 11 on the palm.
+`sensor_positions` computes their hand-frame XYZ from the joint angles in numpy; the URDF also
+carries them as massless fixed links so the two can be checked against each other.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER
+
+N_PROXIMAL_SENSORS = 5
+N_DISTAL_SENSORS = 4
+
+# Palm sensor (x, y) in the base frame, ids 27..37 in this order (2014 visualiser).
+PALM_SITES_XY: tuple[tuple[float, float], ...] = (
+    (-0.0235, -0.0315),
+    (-0.0235, -0.0275),
+    (0.0045, -0.0315),
+    (0.0045, -0.0275),
+    (-0.0235, 0.0315),
+    (-0.0235, 0.0275),
+    (0.0045, 0.0315),
+    (0.0045, 0.0275),
+    (0.026, -0.002),
+    (0.026, 0.002),
+    (0.054, 0.0),
+)
+
+# Distal sensor sites: the visualiser URDF's, and tactile_triangles' Gazebo model's.
+DISTAL_SENSOR_X_URDF = (0.0114, 0.0193, 0.0272, 0.0375)
+DISTAL_SENSOR_Z_URDF = (0.0129, 0.0129, 0.0129, 0.0073)
+DISTAL_SENSOR_X_GAZEBO = (0.0135, 0.0215, 0.0295, 0.0375)
+DISTAL_SENSOR_Z_GAZEBO = (0.009, 0.009, 0.009, 0.009)
+
+
+def _t3(v: tuple[float, ...] | list[float]) -> tuple[float, float, float]:
+    a = tuple(float(x) for x in v)
+    if len(a) != 3:
+        raise ValueError(f"expected 3 numbers, got {v!r}")
+    return a  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class ReflexGeometry:
+    """Dimensions of the hand (metres, radians, kilograms)."""
+
+    # Joint origins (visualiser URDF).
+    swivel_origins: tuple[tuple[float, float, float], ...] = (
+        (0.0504, -0.026, 0.063),
+        (0.0504, 0.026, 0.063),
+    )
+    proximal_on_swivel: tuple[float, float, float] = (0.01, 0.0, 0.0186)
+    thumb_origin: tuple[float, float, float] = (-0.03, 0.0, 0.0816)
+    thumb_yaw: float = np.pi
+    distal_on_proximal: tuple[float, float, float] = (0.076, 0.0, 0.0025)
+    # Sensor sites.
+    proximal_sensor_x: tuple[float, ...] = (0.0189, 0.0268, 0.0347, 0.0426, 0.0506)
+    proximal_sensor_z: float = 0.0154
+    distal_sensor_x: tuple[float, ...] = DISTAL_SENSOR_X_URDF
+    distal_sensor_z: tuple[float, ...] = DISTAL_SENSOR_Z_URDF
+    tip_sensor_tilt: float = 0.52  # fingertip sensor pitched towards +x about the link's y
+    palm_sites_xy: tuple[tuple[float, float], ...] = PALM_SITES_XY
+    palm_sensor_z: float = 0.082
+    # Collision boxes: palm housing (below the pad) and the pad, from the mesh bounds
+    # (housing x -0.055..0.083, y +-0.053, z 0..0.093; pad top 0.0896).
+    housing_lo: tuple[float, float, float] = (-0.055, -0.053, 0.0)
+    housing_hi: tuple[float, float, float] = (0.083, 0.053, 0.075)
+    pad_lo: tuple[float, float, float] = (-0.045, -0.045, 0.075)
+    pad_hi: tuple[float, float, float] = (0.07, 0.045, 0.0896)
+    swivel_size: tuple[float, float, float] = (0.024, 0.018, 0.024)
+    proximal_size: tuple[float, float, float] = (0.071, 0.014, 0.022)  # length, width, height
+    distal_size: tuple[float, float, float] = (0.0385, 0.014, 0.017)
+    # Masses (Gazebo model).
+    base_mass: float = 0.271
+    pad_mass: float = 0.114
+    swivel_mass: float = 0.0126
+    proximal_mass: float = 0.0170
+    distal_mass: float = 0.0060
+    # Joint limits.
+    preshape_limit: float = 1.6
+    proximal_limit: float = float(np.pi)
+    distal_limit: float = 2.74
+
+    def __post_init__(self) -> None:
+        if len(self.proximal_sensor_x) != N_PROXIMAL_SENSORS:
+            raise ValueError(f"need {N_PROXIMAL_SENSORS} proximal sensor x values")
+        if len(self.distal_sensor_x) != N_DISTAL_SENSORS:
+            raise ValueError(f"need {N_DISTAL_SENSORS} distal sensor x values")
+        if len(self.distal_sensor_z) != N_DISTAL_SENSORS:
+            raise ValueError(f"need {N_DISTAL_SENSORS} distal sensor z values")
+        if len(self.palm_sites_xy) != N_SENSORS - N_FINGERS * SENSORS_PER_FINGER:
+            raise ValueError("need 11 palm sites")
+
+    @property
+    def proximal_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of the proximal collision box in its link frame: top face at the sensors."""
+        length, width, height = self.proximal_size
+        top = self.proximal_sensor_z
+        return (
+            np.array([0.0, -width / 2, top - height]),
+            np.array([length, width / 2, top]),
+        )
+
+    @property
+    def distal_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) of the distal collision box: top face at the (untilted) distal sensors."""
+        length, width, height = self.distal_size
+        top = max(self.distal_sensor_z[:-1])
+        return (
+            np.array([0.0, -width / 2, top - height]),
+            np.array([length, width / 2, top]),
+        )
+
+
+def geometry_with_distal_sites(
+    distal_x: list[float] | tuple[float, ...], distal_z: list[float] | tuple[float, ...]
+) -> ReflexGeometry:
+    """Default geometry with the distal sensor sites replaced (they differ between sources)."""
+    return ReflexGeometry(
+        distal_sensor_x=tuple(float(v) for v in distal_x),
+        distal_sensor_z=tuple(float(v) for v in distal_z),
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Kinematics (pure numpy)
+
+
+def rot_x(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def transform(rotation: np.ndarray, translation: np.ndarray | tuple[float, ...]) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = rotation
+    t[:3, 3] = translation
+    return t
+
+
+def finger_link_transforms(
+    geom: ReflexGeometry, finger: int, preshape: float, proximal: float, distal: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """4x4 hand-frame poses of finger `finger`'s proximal and distal link frames."""
+    if finger < 2:
+        # preshape_1 = +theta about -z, preshape_2 = -theta about -z.
+        swivel_angle = -preshape if finger == 0 else preshape
+        t_swivel = transform(rot_z(swivel_angle), geom.swivel_origins[finger])
+        t_prox_origin = t_swivel @ transform(np.eye(3), geom.proximal_on_swivel)
+    else:
+        t_prox_origin = transform(rot_z(geom.thumb_yaw), geom.thumb_origin)
+    # Joints turn about -y: rotation by -angle about +y.
+    t_prox = t_prox_origin @ transform(rot_y(-proximal), (0.0, 0.0, 0.0))
+    t_dist = t_prox @ transform(rot_y(-distal), geom.distal_on_proximal)
+    return t_prox, t_dist
+
+
+def finger_site_offsets(geom: ReflexGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor-site positions in the proximal (5, 3) and distal (4, 3) link frames."""
+    prox = np.zeros((N_PROXIMAL_SENSORS, 3))
+    prox[:, 0] = geom.proximal_sensor_x
+    prox[:, 2] = geom.proximal_sensor_z
+    dist = np.zeros((N_DISTAL_SENSORS, 3))
+    dist[:, 0] = geom.distal_sensor_x
+    dist[:, 2] = geom.distal_sensor_z
+    return prox, dist
+
+
+def palm_site_positions(geom: ReflexGeometry) -> np.ndarray:
+    """(11, 3) palm sensor sites in the hand frame."""
+    xy = np.asarray(geom.palm_sites_xy, dtype=np.float64)
+    return np.column_stack([xy, np.full(len(xy), geom.palm_sensor_z)])
+
+
+def sensor_positions(
+    geom: ReflexGeometry,
+    preshape: float,
+    proximal: np.ndarray | list[float],
+    distal: np.ndarray | list[float],
+) -> np.ndarray:
+    """(38, 3) hand-frame XYZ of every sensor site (ids as in activetouch.interfaces)."""
+    prox_angles = np.asarray(proximal, dtype=np.float64).reshape(N_FINGERS)
+    dist_angles = np.asarray(distal, dtype=np.float64).reshape(N_FINGERS)
+    prox_sites, dist_sites = finger_site_offsets(geom)
+    out = np.empty((N_SENSORS, 3))
+    for f in range(N_FINGERS):
+        t_prox, t_dist = finger_link_transforms(geom, f, preshape, prox_angles[f], dist_angles[f])
+        base = f * SENSORS_PER_FINGER
+        out[base : base + N_PROXIMAL_SENSORS] = prox_sites @ t_prox[:3, :3].T + t_prox[:3, 3]
+        out[base + N_PROXIMAL_SENSORS : base + SENSORS_PER_FINGER] = (
+            dist_sites @ t_dist[:3, :3].T + t_dist[:3, 3]
+        )
+    out[N_FINGERS * SENSORS_PER_FINGER :] = palm_site_positions(geom)
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# URDF text
+
+# Joint and link names; finger f is URDF finger f + 1.
+PRESHAPE_JOINTS = ("preshape_1", "preshape_2")
+PROXIMAL_JOINTS = ("proximal_1", "proximal_2", "proximal_3")
+DISTAL_JOINTS = ("distal_1", "distal_2", "distal_3")
+PROXIMAL_LINKS = ("proximal_1", "proximal_2", "proximal_3")
+DISTAL_LINKS = ("distal_1", "distal_2", "distal_3")
+PAD_LINK = "pad"
+
+
+def sensor_link_name(sensor: int) -> str:
+    """Name of the massless site link of sensor id `sensor` (0..37)."""
+    if 0 <= sensor < N_FINGERS * SENSORS_PER_FINGER:
+        f, s = divmod(sensor, SENSORS_PER_FINGER)
+        return f"finger{f}_sensor{s}"
+    if sensor < N_SENSORS:
+        return f"palm_sensor{sensor - N_FINGERS * SENSORS_PER_FINGER}"
+    raise ValueError(f"no sensor {sensor}")
+
+
+def _f(v: float) -> str:
+    return f"{float(v):.6g}"
+
+
+def _xyz(v: np.ndarray | tuple[float, ...]) -> str:
+    return " ".join(_f(x) for x in v)
+
+
+def _box_inertia(mass: float, size: np.ndarray | tuple[float, ...]) -> str:
+    x, y, z = (float(v) for v in size)
+    ixx = mass * (y * y + z * z) / 12
+    iyy = mass * (x * x + z * z) / 12
+    izz = mass * (x * x + y * y) / 12
+    return f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" iyz="0" izz="{_f(izz)}"/>'
+
+
+def _box_link(name: str, mass: float, lo: np.ndarray, hi: np.ndarray, extra: str = "") -> str:
+    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+    size, centre = hi - lo, (hi + lo) / 2
+    return (
+        f'  <link name="{name}">\n'
+        f'    <inertial><origin xyz="{_xyz(centre)}"/><mass value="{_f(mass)}"/>'
+        f"{_box_inertia(mass, size)}</inertial>\n"
+        f'    <visual><origin xyz="{_xyz(centre)}"/><geometry><box size="{_xyz(size)}"/>'
+        f"</geometry></visual>\n"
+        f'    <collision><origin xyz="{_xyz(centre)}"/><geometry><box size="{_xyz(size)}"/>'
+        f"</geometry></collision>\n"
+        f"{extra}"
+        f"  </link>\n"
+    )
+
+
+def _site_link(name: str) -> str:
+    # Tiny inertia so the loader does not invent a 1 kg default; no geometry.
+    return (
+        f'  <link name="{name}"><inertial><mass value="1e-6"/>'
+        f'<inertia ixx="1e-12" ixy="0" ixz="0" iyy="1e-12" iyz="0" izz="1e-12"/>'
+        f"</inertial></link>\n"
+    )
+
+
+def _joint(
+    name: str,
+    kind: str,
+    parent: str,
+    child: str,
+    xyz: tuple[float, ...] | np.ndarray,
+    rpy: tuple[float, ...] = (0.0, 0.0, 0.0),
+    axis: tuple[float, float, float] | None = None,
+    limits: tuple[float, float] | None = None,
+) -> str:
+    s = f'  <joint name="{name}" type="{kind}">\n'
+    s += f'    <parent link="{parent}"/><child link="{child}"/>\n'
+    s += f'    <origin xyz="{_xyz(xyz)}" rpy="{_xyz(rpy)}"/>\n'
+    if axis is not None:
+        s += f'    <axis xyz="{_xyz(axis)}"/>\n'
+    if limits is not None:
+        s += (
+            f'    <limit lower="{_f(limits[0])}" upper="{_f(limits[1])}" effort="10" '
+            f'velocity="5"/>\n'
+        )
+    return s + "  </joint>\n"
+
+
+def build_urdf(geom: ReflexGeometry | None = None) -> str:
+    """The hand's URDF text (boxes with the real sizes and masses, sensor-site links)."""
+    g = geom or ReflexGeometry()
+    parts = ['<?xml version="1.0"?>\n<robot name="reflex">\n']
+    parts.append(_box_link("base", g.base_mass, np.array(g.housing_lo), np.array(g.housing_hi)))
+    parts.append(_box_link(PAD_LINK, g.pad_mass, np.array(g.pad_lo), np.array(g.pad_hi)))
+    parts.append(_joint("pad_joint", "fixed", "base", PAD_LINK, (0.0, 0.0, 0.0)))
+
+    prox_lo, prox_hi = g.proximal_box
+    dist_lo, dist_hi = g.distal_box
+    prox_sites, dist_sites = finger_site_offsets(g)
+    # The fingertip is rounded: a second box, tilted like the tip sensor, whose top face passes
+    # through the tip site, so the tip sensor faces forward-up as on the real finger.
+    tip_len = 0.012
+    tip_h = g.distal_size[2] * 0.6
+    tilt = g.tip_sensor_tilt
+    tip_site = dist_sites[-1]
+    # Box centre: from the tip site go half a length back along the tilted x axis and half a
+    # height down along the tilted z axis.
+    r = rot_y(tilt)
+    tip_centre = tip_site - r @ np.array([tip_len / 2 - 0.002, 0.0, tip_h / 2])
+    tip_size = np.array([tip_len, g.distal_size[1], tip_h])
+    tip_collision = (
+        f'    <collision><origin xyz="{_xyz(tip_centre)}" rpy="0 {_f(tilt)} 0"/>'
+        f'<geometry><box size="{_xyz(tip_size)}"/></geometry></collision>\n'
+        f'    <visual><origin xyz="{_xyz(tip_centre)}" rpy="0 {_f(tilt)} 0"/>'
+        f'<geometry><box size="{_xyz(tip_size)}"/></geometry></visual>\n'
+    )
+
+    for f in range(N_FINGERS):
+        n = f + 1
+        if f < 2:
+            swivel = f"swivel_{n}"
+            half = np.array(g.swivel_size) / 2
+            centre = np.array([g.proximal_on_swivel[0] * 0.5, 0.0, g.proximal_on_swivel[2] * 0.5])
+            parts.append(_box_link(swivel, g.swivel_mass, centre - half, centre + half))
+            parts.append(
+                _joint(
+                    PRESHAPE_JOINTS[f],
+                    "revolute",
+                    "base",
+                    swivel,
+                    g.swivel_origins[f],
+                    axis=(0.0, 0.0, -1.0),
+                    limits=(-g.preshape_limit, g.preshape_limit),
+                )
+            )
+            prox_parent, prox_xyz, prox_rpy = swivel, g.proximal_on_swivel, (0.0, 0.0, 0.0)
+        else:
+            prox_parent, prox_xyz, prox_rpy = "base", g.thumb_origin, (0.0, 0.0, g.thumb_yaw)
+        parts.append(_box_link(PROXIMAL_LINKS[f], g.proximal_mass, prox_lo, prox_hi))
+        parts.append(
+            _joint(
+                PROXIMAL_JOINTS[f],
+                "revolute",
+                prox_parent,
+                PROXIMAL_LINKS[f],
+                prox_xyz,
+                prox_rpy,
+                axis=(0.0, -1.0, 0.0),
+                limits=(0.0, g.proximal_limit),
+            )
+        )
+        parts.append(
+            _box_link(DISTAL_LINKS[f], g.distal_mass, dist_lo, dist_hi, extra=tip_collision)
+        )
+        parts.append(
+            _joint(
+                DISTAL_JOINTS[f],
+                "revolute",
+                PROXIMAL_LINKS[f],
+                DISTAL_LINKS[f],
+                g.distal_on_proximal,
+                axis=(0.0, -1.0, 0.0),
+                limits=(0.0, g.distal_limit),
+            )
+        )
+        for s in range(SENSORS_PER_FINGER):
+            sid = f * SENSORS_PER_FINGER + s
+            if s < N_PROXIMAL_SENSORS:
+                parent, xyz, rpy = PROXIMAL_LINKS[f], prox_sites[s], (0.0, 0.0, 0.0)
+            else:
+                parent, xyz = DISTAL_LINKS[f], dist_sites[s - N_PROXIMAL_SENSORS]
+                rpy = (0.0, tilt, 0.0) if s == SENSORS_PER_FINGER - 1 else (0.0, 0.0, 0.0)
+            parts.append(_site_link(sensor_link_name(sid)))
+            parts.append(_joint(f"{sensor_link_name(sid)}_joint", "fixed", parent,
+                                sensor_link_name(sid), xyz, rpy))
+    for i, xyz in enumerate(palm_site_positions(g)):
+        sid = N_FINGERS * SENSORS_PER_FINGER + i
+        parts.append(_site_link(sensor_link_name(sid)))
+        parts.append(
+            _joint(f"{sensor_link_name(sid)}_joint", "fixed", PAD_LINK, sensor_link_name(sid), xyz)
+        )
+    parts.append("</robot>\n")
+    return "".join(parts)
+
+
+def urdf_file(geom: ReflexGeometry | None = None, cache_dir: Path | None = None) -> Path:
+    """Write the URDF to a cache file named by its content hash (pybullet loads from files).
+
+    Written atomically (temp file + rename), so concurrent worlds and processes are safe."""
+    text = build_urdf(geom)
+    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
+    root = cache_dir or Path(tempfile.gettempdir()) / f"activetouch-{os.getuid()}"
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / f"reflex_{digest}.urdf"
+    if not path.exists() or path.read_text() != text:
+        fd, tmp = tempfile.mkstemp(dir=root, suffix=".urdf.tmp")
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    return path
+
+
+@dataclass(frozen=True)
+class HandJointIndex:
+    """PyBullet joint/link indices of a loaded hand (a joint's index is its child link's)."""
+
+    preshape: tuple[int, int]
+    proximal: tuple[int, int, int]
+    distal: tuple[int, int, int]
+    pad: int
+    sensor_links: tuple[int, ...]  # (38,)
+    finger_of_link: dict[int, int] = field(default_factory=dict)  # proximal/distal link -> finger
