@@ -19,3 +19,15 @@ class UnreachableError(ActiveTouchError):
 
 class PlanningError(ActiveTouchError):
     """The planner cannot produce a plan, e.g. no unvisited pose remains."""
+
+
+class MessageError(ActiveTouchError):
+    """A message received over Zenoh is malformed: not JSON, wrong schema version, bad field."""
+
+
+class NodeUnavailableError(ActiveTouchError):
+    """A remote node (hand, arm, daemon) did not answer in time or its liveliness token dropped."""
+
+
+class RemoteError(ActiveTouchError):
+    """A remote node failed with an error that has no counterpart here (e.g. a driver bug)."""
