@@ -10,15 +10,53 @@ Vocabulary (Zhang et al. 2017, Sec. III-IV):
   triangle granularity, every triangle bin of a training grasp at grasp granularity.
 
 Every table is a flat numpy array (CSR where ragged), so the tree search can run compiled.
+
+How `build_observation_model` fills the tables:
+- Discretisation is the authors' ``trunc(v / cell) * cell`` (values are rounded to 9 decimals of
+  a cell first, so 0.12 / 0.06 counts as 2, not 1.999...). Quaternions are sign-canonicalised
+  (w >= 0) before they are discretised.
+- Poses: training poses of all classes, deduplicated by their discretised (translation,
+  quaternion) key; the first pose met with a key represents it. Pose ids follow first occurrence.
+- Edges: every ordered pair p != q of pooled poses, CSR by p with q ascending; the action of an
+  edge is the discretised pose of q in p's frame. Action ids index the distinct discretised
+  relative poses (ascending key order); `action_delta` holds the discretised values and
+  `action_cost` the mean movement cost of the exact relative poses of the edges in the action.
+- Cells: a dictionary of the discretised triangle triples met in training; `cell_key[c]` is the
+  integer triple ``trunc(v / triangle_cell)`` of cell c (rows sorted). Unseen triples -> -1.
+- Tallies of class y from every ordered pair (i, j) of its grasps at different pooled poses,
+  action a = the action of the edge (pose of i, pose of j):
+  * "triangle" (the paper): for every triangle of i in cell c and every triangle t' of j,
+    count[(y, a, c) -> (cell of t', bin of t')] += 1. Outcomes are the distinct (cell, bin) pairs.
+  * "grasp": outcomes are the distinct (grasp j, cell c') pairs of all classes; an outcome adds
+    all of j's triangle bins and leaves cell c' behind. count[(y, a, c) -> (j, c')] +=
+    n_i(c) * n_j(c'), the numbers of i's triangles in c and of j's in c'.
+  Grasps without triangles are never outcomes (there is nothing to add to the histogram).
+- Marginal rows p(z' | a, y): every pair (i, j) (also i without triangles) adds n_j(o) to
+  outcome o, i.e. the conditioning on i's cells is dropped.
+Rows are normalised and stored as cumulative probabilities (outcomes ascending within a row).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
+
+from activetouch.config import ObservationConfig
+from activetouch.errors import ConfigError, DataError
+from activetouch.recognition.histogram import HistogramSpec
 
 GRANULARITIES = ("triangle", "grasp")
+
+_I64 = np.int64
+
+
+def _empty_i64(*shape: int) -> np.ndarray:
+    return np.zeros(shape or (0,), dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -52,6 +90,13 @@ class ObservationModel:
     marg_ptr: np.ndarray  # (R2 + 1,) int64
     marg_out: np.ndarray  # (S2,) int64
     marg_cum: np.ndarray  # (S2,) float64
+    # --- additions (defaults keep hand-built models valid) ---
+    # Cell dictionary: integer triple trunc(v / triangle_cell) of each cell, rows sorted.
+    cell_key: np.ndarray = field(default_factory=lambda: _empty_i64(0, 3))  # (C, 3) int64
+    translation_cell: float = 0.06  # m
+    quaternion_cell: float = 0.05
+    triangle_cell: float = 0.08
+    max_translation: float = 0.0  # m, the largest edge translation: c_m's normaliser
 
     @property
     def n_classes(self) -> int:
@@ -68,3 +113,583 @@ class ObservationModel:
     @property
     def n_outcomes(self) -> int:
         return len(self.out_cell)
+
+    # --- queries ------------------------------------------------------------------------------
+
+    def actions_from(self, pose: int) -> tuple[np.ndarray, np.ndarray]:
+        """(action ids, target pose ids) of the edges leaving pooled pose `pose`."""
+        if not 0 <= pose < self.n_poses:
+            raise IndexError(f"pose {pose} out of range [0, {self.n_poses})")
+        lo, hi = self.edge_ptr[pose], self.edge_ptr[pose + 1]
+        return self.edge_action[lo:hi], self.edge_target[lo:hi]
+
+    def cells_of(self, triangles: np.ndarray) -> np.ndarray:
+        """(m,) int64 cell id of each triangle (m, 3); -1 for a cell never seen in training."""
+        t = np.asarray(triangles, dtype=np.float64).reshape(-1, 3)
+        keys = cell_keys(t, self.triangle_cell)
+        return _lookup_rows(self.cell_key, keys)
+
+    def pose_index_of(self, pose: np.ndarray) -> int:
+        """The pooled pose nearest to `pose` (7,), nearest meaning the cheapest move c_m."""
+        if self.n_poses == 0:
+            raise IndexError("the observation model has no poses")
+        p = np.asarray(pose, dtype=np.float64).reshape(7)
+        pooled = np.concatenate([self.pose_xyz, self.pose_quat], axis=1)
+        delta = relative_pose(p, pooled)
+        scale = self.max_translation if self.max_translation > 0 else 1.0
+        return int(np.argmin(movement_cost(delta, scale, clip=False)))
+
+    # --- storage ------------------------------------------------------------------------------
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every array field, for an ``.npz`` (no pickle)."""
+        return {
+            f.name: getattr(self, f.name)
+            for f in dataclasses.fields(self)
+            if isinstance(getattr(self, f.name), np.ndarray)
+        }
+
+    def scalars(self) -> dict[str, Any]:
+        """Every non-array field, JSON-able."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, np.ndarray):
+                out[f.name] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def from_parts(cls, scalars: dict[str, Any], arrays: dict[str, np.ndarray]) -> ObservationModel:
+        """Inverse of `scalars()` / `arrays()`; DataError when something is missing or wrong."""
+        names = [f.name for f in dataclasses.fields(cls)]
+        kw: dict[str, Any] = {}
+        for name in names:
+            if name in arrays:
+                kw[name] = np.asarray(arrays[name])
+            elif name in scalars:
+                kw[name] = scalars[name]
+        missing = [
+            f.name
+            for f in dataclasses.fields(cls)
+            if f.name not in kw
+            and f.default is dataclasses.MISSING
+            and f.default_factory is dataclasses.MISSING
+        ]
+        if missing:
+            raise DataError(f"observation model lacks {', '.join(missing)}")
+        kw["class_names"] = tuple(str(c) for c in kw["class_names"])
+        model = cls(**kw)
+        model.validate()
+        return model
+
+    def validate(self) -> None:
+        """Check dtypes and that every index and CSR pointer is consistent; DataError if not."""
+        P, A, C, K = self.n_poses, self.n_actions, self.n_cells, self.n_classes
+        n_out = self.n_outcomes
+
+        def fail(msg: str) -> None:
+            raise DataError(f"observation model is inconsistent: {msg}")
+
+        if self.granularity not in GRANULARITIES:
+            fail(f"granularity {self.granularity!r}")
+        shapes = {
+            "pose_xyz": (P, 3),
+            "pose_quat": (P, 4),
+            "action_delta": (A, 7),
+            "edge_ptr": (P + 1,),
+            "out_ptr": (n_out + 1,),
+            "tally_ptr": (len(self.tally_key) + 1,),
+            "marg_ptr": (len(self.marg_key) + 1,),
+            "cell_key": (C, 3),
+        }
+        for name, shape in shapes.items():
+            if getattr(self, name).shape != shape:
+                fail(f"{name} has shape {getattr(self, name).shape}, expected {shape}")
+        for name, arr in self.arrays().items():
+            want = np.float64 if name in _FLOAT_ARRAYS else np.int64
+            if arr.dtype != want:
+                fail(f"{name} has dtype {arr.dtype}, expected {np.dtype(want)}")
+        for ptr, data, what in (
+            ("edge_ptr", ("edge_action", "edge_target"), "edges"),
+            ("out_ptr", ("out_bin",), "outcome bins"),
+            ("tally_ptr", ("tally_out", "tally_cum"), "tallies"),
+            ("marg_ptr", ("marg_out", "marg_cum"), "marginal tallies"),
+        ):
+            p = getattr(self, ptr)
+            n = len(getattr(self, data[0]))
+            if p[0] != 0 or p[-1] != n or np.any(np.diff(p) < 0):
+                fail(f"{ptr} is not a CSR index into {n} {what}")
+            if any(len(getattr(self, d)) != n for d in data):
+                fail(f"{', '.join(data)} differ in length")
+        checks = [
+            ("edge_action", A),
+            ("edge_target", P),
+            ("out_cell", C),
+            ("out_bin", self.n_bins),
+            ("tally_out", n_out),
+            ("marg_out", n_out),
+        ]
+        for name, bound in checks:
+            a = getattr(self, name)
+            if len(a) and (a.min() < 0 or a.max() >= bound):
+                fail(f"{name} holds ids outside [0, {bound})")
+        for key, bound in (("tally_key", K * A * C), ("marg_key", K * A)):
+            k = getattr(self, key)
+            if len(k) and (np.any(np.diff(k) <= 0) or k[0] < 0 or k[-1] >= bound):
+                fail(f"{key} is not strictly ascending within [0, {bound})")
+
+
+_FLOAT_ARRAYS = frozenset(
+    {"pose_xyz", "pose_quat", "action_delta", "action_cost", "tally_cum", "marg_cum"}
+)
+
+
+# --- pure pose math ---------------------------------------------------------------------------
+
+
+def canonical_quat(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4) x y z w with the sign fixed: w > 0, or for w = 0 the first
+    nonzero of x, y, z positive (q and -q are the same rotation)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    order = q[..., [3, 0, 1, 2]]
+    big = np.abs(order) > 1e-12
+    first = np.argmax(big, axis=-1)
+    lead = np.take_along_axis(order, first[..., None], axis=-1)
+    return np.where(lead < 0, -q, q)
+
+
+def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    x1, y1, z1, w1 = np.moveaxis(p, -1, 0)
+    x2, y2, z2, w2 = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+        ],
+        axis=-1,
+    )
+
+
+def _qrotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (..., 3) by unit quaternions q (..., 4)."""
+    u, w = q[..., :3], q[..., 3:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def relative_pose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pose of b in a's frame, (..., 7) x y z qx qy qz qw; broadcasts; quaternion canonical."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    qa = a[..., 3:] / np.linalg.norm(a[..., 3:], axis=-1, keepdims=True)
+    qa_inv = qa * np.array([-1.0, -1.0, -1.0, 1.0])
+    t = _qrotate(qa_inv, b[..., :3] - a[..., :3])
+    q = canonical_quat(_qmul(qa_inv, b[..., 3:]))
+    return np.concatenate([t, q], axis=-1)
+
+
+def cell_keys(values: np.ndarray, cell: float) -> np.ndarray:
+    """Integer cell index trunc(v / cell) (int64), robust to float noise at cell boundaries."""
+    if not cell > 0:
+        raise ConfigError(f"discretisation cell must be positive, got {cell}")
+    return np.trunc(np.round(np.asarray(values, dtype=np.float64) / cell, 9)).astype(np.int64)
+
+
+def discretise(values: np.ndarray, cell: float) -> np.ndarray:
+    """The authors' discretisation trunc(v / cell) * cell."""
+    return cell_keys(values, cell).astype(np.float64) * cell
+
+
+def rotation_angle(quat: np.ndarray) -> np.ndarray:
+    """Rotation angle in [0, pi] of quaternions (..., 4) (need not be unit)."""
+    q = np.asarray(quat, dtype=np.float64)
+    w = np.abs(q[..., 3]) / np.linalg.norm(q, axis=-1)
+    return 2.0 * np.arccos(np.clip(w, 0.0, 1.0))
+
+
+def movement_cost(delta: np.ndarray, max_translation: float, clip: bool = True) -> np.ndarray:
+    """c_m(a) in [0, 1]: 0.5 * |t| / max_translation + 0.5 * angle / pi for deltas (A, 7).
+
+    Translation and rotation are each normalised to [0, 1] and weighted equally (paper Sec. IV).
+    A translation beyond `max_translation` counts as 1 unless clip=False."""
+    d = np.asarray(delta, dtype=np.float64)
+    trans = np.linalg.norm(d[..., :3], axis=-1)
+    tnorm = trans / max_translation if max_translation > 0 else np.zeros_like(trans)
+    if clip:
+        tnorm = np.minimum(tnorm, 1.0)
+    return 0.5 * tnorm + 0.5 * rotation_angle(d[..., 3:]) / np.pi
+
+
+# --- encoding helpers -------------------------------------------------------------------------
+
+
+def _encode_rows(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct rows of an (n, k) int64 array: (unique rows sorted, first index, inverse)."""
+    keys = np.asarray(keys, dtype=np.int64)
+    n, k = keys.shape
+    if n == 0:
+        return keys.reshape(0, k), _empty_i64(), _empty_i64()
+    lo = keys.min(axis=0)
+    span = keys.max(axis=0) - lo + 1
+    if np.sum(np.log2(span.astype(np.float64))) < 62:
+        # Mixed-radix code: one int64 per row, so np.unique stays one fast 1-D sort.
+        code = np.zeros(n, dtype=np.int64)
+        for d in range(k):
+            code = code * span[d] + (keys[:, d] - lo[d])
+        _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return keys[first], first.astype(np.int64), inverse.reshape(-1).astype(np.int64)
+
+
+def _lookup_rows(table: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """Index of each row of `keys` in the lexicographically sorted unique rows `table`, or -1."""
+    out = np.full(len(keys), -1, dtype=np.int64)
+    if len(table) == 0 or len(keys) == 0:
+        return out
+    lo = table.min(axis=0)
+    span = table.max(axis=0) - lo + 1
+    inside = np.all((keys >= lo) & (keys < lo + span), axis=1)
+    # Within the table's ranges a mixed-radix code preserves lexicographic order.
+    code_t = np.zeros(len(table), dtype=np.int64)
+    code_k = np.zeros(int(inside.sum()), dtype=np.int64)
+    ki = keys[inside]
+    for d in range(table.shape[1]):
+        code_t = code_t * span[d] + (table[:, d] - lo[d])
+        code_k = code_k * span[d] + (ki[:, d] - lo[d])
+    pos = np.searchsorted(code_t, code_k)
+    pos_c = np.minimum(pos, len(code_t) - 1)
+    found = code_t[pos_c] == code_k
+    res = np.where(found, pos_c, -1)
+    out[np.flatnonzero(inside)] = res
+    return out
+
+
+def _pose_keys(poses: np.ndarray, tcell: float, qcell: float) -> np.ndarray:
+    return np.concatenate(
+        [cell_keys(poses[:, :3], tcell), cell_keys(canonical_quat(poses[:, 3:]), qcell)], axis=1
+    )
+
+
+def _cumulative_rows(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ptr, outcome ids, cumulative probabilities) of a CSR count matrix without empty rows."""
+    m.sum_duplicates()
+    m.sort_indices()
+    ptr = m.indptr.astype(np.int64)
+    data = m.data.astype(np.float64)
+    lens = np.diff(ptr)
+    cs = np.cumsum(data)
+    start = np.concatenate([[0.0], cs])[ptr[:-1]]
+    total = np.concatenate([[0.0], cs])[ptr[1:]] - start
+    cum = (cs - np.repeat(start, lens)) / np.repeat(total, lens)
+    cum[ptr[1:] - 1] = 1.0  # exact row ends, whatever the rounding
+    return ptr, m.indices.astype(np.int64), cum
+
+
+# --- builder ----------------------------------------------------------------------------------
+
+
+def build_observation_model(
+    objects: Sequence[tuple[str, np.ndarray, Sequence[np.ndarray]]],
+    spec: HistogramSpec,
+    cfg: ObservationConfig,
+) -> ObservationModel:
+    """The observation model of training data: per object (name, poses (G, 7), triangles of each
+    grasp [(m_g, 3)]). See the module docstring for what each table holds."""
+    if cfg.granularity not in GRANULARITIES:
+        raise ConfigError(
+            f"observation.granularity {cfg.granularity!r}: choose one of {', '.join(GRANULARITIES)}"
+        )
+    tcell, qcell, ccell = cfg.translation_cell_m, cfg.quaternion_cell, cfg.triangle_cell
+    for name, v in (
+        ("translation_cell_m", tcell),
+        ("quaternion_cell", qcell),
+        ("triangle_cell", ccell),
+    ):
+        if not v > 0:
+            raise ConfigError(f"observation.{name} must be positive, got {v}")
+    if not objects:
+        raise DataError("cannot build an observation model without objects")
+    names = tuple(str(o[0]) for o in objects)
+    if len(set(names)) != len(names):
+        raise DataError(f"duplicate object names in {names}")
+    K = len(objects)
+
+    # Grasps of all classes, concatenated in object order.
+    pose_blocks, tri_blocks, tri_count, grasp_class = [], [], [], []
+    for y, (name, poses, tris) in enumerate(objects):
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        if len(tris) != len(poses):
+            raise DataError(f"object {name}: {len(poses)} poses but {len(tris)} triangle tables")
+        if not np.all(np.isfinite(poses)):
+            raise DataError(f"object {name}: poses hold NaN or infinite values")
+        pose_blocks.append(poses)
+        for t in tris:
+            t = np.asarray(t, dtype=np.float64).reshape(-1, 3)
+            tri_blocks.append(t)
+            tri_count.append(len(t))
+        grasp_class.append(np.full(len(poses), y, dtype=np.int64))
+    all_poses = np.concatenate(pose_blocks)
+    g_class = np.concatenate(grasp_class)
+    n_grasps = len(all_poses)
+    tri_ptr = np.zeros(n_grasps + 1, dtype=np.int64)
+    np.cumsum(np.asarray(tri_count, dtype=np.int64), out=tri_ptr[1:])
+    tris = np.concatenate([*tri_blocks, np.zeros((0, 3))])
+    tri_grasp = np.repeat(np.arange(n_grasps, dtype=np.int64), np.diff(tri_ptr))
+
+    # Poses: dedupe by discretised key, ids in order of first occurrence.
+    _, first, inv = _encode_rows(_pose_keys(all_poses, tcell, qcell))
+    order = np.argsort(first, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    grasp_pose = rank[inv] if n_grasps else _empty_i64()
+    rep = all_poses[first[order]]
+    pose_xyz = rep[:, :3].copy()
+    pose_quat = canonical_quat(rep[:, 3:]) if len(rep) else np.zeros((0, 4))
+    P = len(rep)
+
+    # Edges p -> q (q != p, ascending) and their discretised actions.
+    if P >= 2:
+        src = np.repeat(np.arange(P, dtype=np.int64), P - 1)
+        off = np.tile(np.arange(P - 1, dtype=np.int64), P)
+        dst = off + (off >= src)
+    else:
+        src = dst = _empty_i64()
+    pooled = np.concatenate([pose_xyz, pose_quat], axis=1)
+    delta = relative_pose(pooled[src], pooled[dst]) if len(src) else np.zeros((0, 7))
+    dkey = _pose_keys(delta, tcell, qcell)
+    akeys, _, edge_action = _encode_rows(dkey)
+    A = len(akeys)
+    action_delta = np.concatenate(
+        [akeys[:, :3].astype(np.float64) * tcell, akeys[:, 3:].astype(np.float64) * qcell], axis=1
+    )
+    max_t = float(np.linalg.norm(delta[:, :3], axis=1).max()) if len(delta) else 0.0
+    edge_cost = movement_cost(delta, max_t)
+    n_in = np.bincount(edge_action, minlength=A)
+    action_cost = np.bincount(edge_action, weights=edge_cost, minlength=A) / np.maximum(n_in, 1)
+    edge_ptr = np.arange(P + 1, dtype=np.int64) * max(P - 1, 0)
+
+    # Cells and bins of every training triangle.
+    cell_key, _, tri_cell = _encode_rows(cell_keys(tris, ccell))
+    C = len(cell_key)
+    tri_bin = spec.bin_index(tris) if len(tris) else _empty_i64()
+    nb = spec.n_bins
+
+    # Outcomes: one id per triangle, so both granularities share the tally code below.
+    if cfg.granularity == "triangle":
+        ucode, tri_out = np.unique(tri_cell * nb + tri_bin, return_inverse=True)
+        out_cell = (ucode // nb).astype(np.int64)
+        out_ptr = np.arange(len(ucode) + 1, dtype=np.int64)
+        out_bin = (ucode % nb).astype(np.int64)
+    else:
+        ucode, tri_out = np.unique(tri_grasp * max(C, 1) + tri_cell, return_inverse=True)
+        out_cell = (ucode % max(C, 1)).astype(np.int64)
+        og = (ucode // max(C, 1)).astype(np.int64)  # grasp of each outcome
+        lens = np.diff(tri_ptr)[og]
+        out_ptr = np.zeros(len(ucode) + 1, dtype=np.int64)
+        np.cumsum(lens, out=out_ptr[1:])
+        gather = np.repeat(tri_ptr[og] - out_ptr[:-1], lens) + np.arange(out_ptr[-1])
+        out_bin = tri_bin[gather].astype(np.int64)
+    tri_out = tri_out.reshape(-1).astype(np.int64)
+    n_out = len(out_cell)
+
+    ones = np.ones(len(tris))
+    cmat = sp.csr_matrix((ones, (tri_grasp, tri_cell)), shape=(n_grasps, max(C, 1)))
+    omat = sp.csr_matrix((ones, (tri_grasp, tri_out)), shape=(n_grasps, max(n_out, 1)))
+    cmat.sum_duplicates()
+    omat.sum_duplicates()
+
+    t_keys, t_ptrs, t_outs, t_cums = [], [], [], []
+    m_keys, m_ptrs, m_outs, m_cums = [], [], [], []
+    for y in range(K):
+        g = np.flatnonzero(g_class == y)
+        if len(g) < 2 or P < 2:
+            continue
+        ii = np.repeat(g, len(g))
+        jj = np.tile(g, len(g))
+        pi, pj = grasp_pose[ii], grasp_pose[jj]
+        ok = pi != pj
+        ii, jj, pi, pj = ii[ok], jj[ok], pi[ok], pj[ok]
+        if len(ii) == 0:
+            continue
+        act = edge_action[pi * (P - 1) + pj - (pj > pi)]
+        n_pairs = len(ii)
+        right = omat[jj]  # (pairs, O): outcomes of the second grasp of each pair
+
+        # Conditioned rows (a, c): left[(a, c), k] = n_i(c) for pair k.
+        ci = cmat[ii]
+        plen = np.diff(ci.indptr)
+        rowkey = np.repeat(act, plen) * C + ci.indices
+        urow, rinv = np.unique(rowkey, return_inverse=True)
+        left = sp.csr_matrix(
+            (ci.data, (rinv.reshape(-1), np.repeat(np.arange(n_pairs), plen))),
+            shape=(len(urow), n_pairs),
+        )
+        ptr, outs, cum = _cumulative_rows(sp.csr_matrix(left @ right))
+        keep = np.diff(ptr) > 0
+        if not keep.all():  # rows whose pairs had no outcome at all
+            ptr, outs, cum, urow = _drop_empty(ptr, outs, cum, urow, keep)
+        t_keys.append(y * A * C + urow)
+        t_ptrs.append(ptr)
+        t_outs.append(outs)
+        t_cums.append(cum)
+
+        # Marginal rows (a): every pair counts once, whatever i's cells.
+        uact, ainv = np.unique(act, return_inverse=True)
+        lm = sp.csr_matrix(
+            (np.ones(n_pairs), (ainv.reshape(-1), np.arange(n_pairs))), shape=(len(uact), n_pairs)
+        )
+        ptr, outs, cum = _cumulative_rows(sp.csr_matrix(lm @ right))
+        keep = np.diff(ptr) > 0
+        if not keep.all():
+            ptr, outs, cum, uact = _drop_empty(ptr, outs, cum, uact, keep)
+        m_keys.append(y * A + uact)
+        m_ptrs.append(ptr)
+        m_outs.append(outs)
+        m_cums.append(cum)
+
+    tally_key, tally_ptr, tally_out, tally_cum = _concat_rows(t_keys, t_ptrs, t_outs, t_cums)
+    marg_key, marg_ptr, marg_out, marg_cum = _concat_rows(m_keys, m_ptrs, m_outs, m_cums)
+    return ObservationModel(
+        granularity=cfg.granularity,
+        class_names=names,
+        n_bins=nb,
+        n_cells=C,
+        pose_xyz=pose_xyz,
+        pose_quat=pose_quat,
+        action_delta=action_delta,
+        action_cost=action_cost,
+        edge_ptr=edge_ptr,
+        edge_action=edge_action.astype(np.int64),
+        edge_target=dst.astype(np.int64),
+        out_cell=out_cell,
+        out_ptr=out_ptr,
+        out_bin=out_bin,
+        tally_key=tally_key,
+        tally_ptr=tally_ptr,
+        tally_out=tally_out,
+        tally_cum=tally_cum,
+        marg_key=marg_key,
+        marg_ptr=marg_ptr,
+        marg_out=marg_out,
+        marg_cum=marg_cum,
+        cell_key=cell_key,
+        translation_cell=float(tcell),
+        quaternion_cell=float(qcell),
+        triangle_cell=float(ccell),
+        max_translation=max_t,
+    )
+
+
+def _drop_empty(
+    ptr: np.ndarray, outs: np.ndarray, cum: np.ndarray, keys: np.ndarray, keep: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    lens = np.diff(ptr)[keep]
+    new_ptr = np.zeros(len(lens) + 1, dtype=np.int64)
+    np.cumsum(lens, out=new_ptr[1:])
+    return new_ptr, outs, cum, keys[keep]  # empty rows own no entries, so data stays as is
+
+
+def _concat_rows(
+    keys: list[np.ndarray], ptrs: list[np.ndarray], outs: list[np.ndarray], cums: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    if not keys:
+        return _empty_i64(), np.zeros(1, dtype=np.int64), _empty_i64(), np.zeros(0)
+    shifts = np.cumsum([0] + [p[-1] for p in ptrs[:-1]])
+    ptr = np.concatenate([[0]] + [p[1:] + s for p, s in zip(ptrs, shifts, strict=True)])
+    return (
+        np.concatenate(keys).astype(np.int64),
+        ptr.astype(np.int64),
+        np.concatenate(outs).astype(np.int64),
+        np.concatenate(cums).astype(np.float64),
+    )
+
+
+# --- sampling (reference numpy implementation of Eq. 4) ---------------------------------------
+
+
+def _find(keys: np.ndarray, codes: np.ndarray) -> np.ndarray:
+    """Row of each code in the sorted `keys`, -1 where absent."""
+    if len(keys) == 0:
+        return np.full(len(codes), -1, dtype=np.int64)
+    pos = np.minimum(np.searchsorted(keys, codes), len(keys) - 1)
+    return np.where(keys[pos] == codes, pos, -1).astype(np.int64)
+
+
+def class_rows(model: ObservationModel, cell: int, action: int) -> tuple[str, np.ndarray]:
+    """Which table answers (cell, action) and each class's row in it (-1: no data).
+
+    ("tally", rows) when some class has a row for (y, action, cell); else ("marg", rows) from
+    the (y, action) marginal rows; ("none", all -1) when no class has data for the action."""
+    if not 0 <= action < model.n_actions:
+        raise IndexError(f"action {action} out of range [0, {model.n_actions})")
+    y = np.arange(model.n_classes, dtype=np.int64)
+    A, C = model.n_actions, model.n_cells
+    if 0 <= cell < C:
+        rows = _find(model.tally_key, (y * A + action) * C + cell)
+        if np.any(rows >= 0):
+            return "tally", rows
+    rows = _find(model.marg_key, y * A + action)
+    return ("marg" if np.any(rows >= 0) else "none"), rows
+
+
+def _class_weights(p_y: np.ndarray, rows: np.ndarray, n_classes: int) -> np.ndarray:
+    p = np.asarray(p_y, dtype=np.float64).reshape(-1)
+    if p.shape != (n_classes,) or np.any(p < 0) or not np.all(np.isfinite(p)):
+        raise ValueError(f"p_y must be {n_classes} non-negative probabilities, got {p}")
+    w = np.where(rows >= 0, p, 0.0)
+    if w.sum() <= 0:  # the classifier rules out every class with data: treat those alike
+        w = (rows >= 0).astype(np.float64)
+    return w / w.sum()
+
+
+def sample_outcome(
+    model: ObservationModel,
+    cell: int,
+    action: int,
+    p_y: np.ndarray,
+    rng: np.random.Generator,
+) -> int:
+    """Draw z' ~ sum_y p(z' | z=cell, a=action, y) p(y) (Eq. 4); -1 when nothing is known.
+
+    Classes without a row for (y, action, cell) are left out and p(y) renormalised over the
+    rest; when no class has one, the (y, action) marginal rows are used the same way."""
+    table, rows = class_rows(model, cell, action)
+    if table == "none":
+        return -1
+    w = _class_weights(p_y, rows, model.n_classes)
+    y = min(int(np.searchsorted(np.cumsum(w), rng.random() * w.sum(), side="right")), len(w) - 1)
+    while w[y] <= 0:  # only reachable through rounding at the top end
+        y -= 1
+    ptr, out, cum = (
+        (model.tally_ptr, model.tally_out, model.tally_cum)
+        if table == "tally"
+        else (model.marg_ptr, model.marg_out, model.marg_cum)
+    )
+    lo, hi = ptr[rows[y]], ptr[rows[y] + 1]
+    k = min(int(np.searchsorted(cum[lo:hi], rng.random(), side="right")), hi - lo - 1)
+    return int(out[lo + k])
+
+
+def outcome_probabilities(
+    model: ObservationModel, cell: int, action: int, p_y: np.ndarray
+) -> np.ndarray:
+    """(O,) exact probabilities of each outcome under `sample_outcome` (zeros if no data)."""
+    probs = np.zeros(model.n_outcomes)
+    table, rows = class_rows(model, cell, action)
+    if table == "none":
+        return probs
+    w = _class_weights(p_y, rows, model.n_classes)
+    ptr, out, cum = (
+        (model.tally_ptr, model.tally_out, model.tally_cum)
+        if table == "tally"
+        else (model.marg_ptr, model.marg_out, model.marg_cum)
+    )
+    for y in np.flatnonzero(w > 0):
+        lo, hi = ptr[rows[y]], ptr[rows[y] + 1]
+        pmf = np.diff(np.concatenate([[0.0], cum[lo:hi]]))
+        np.add.at(probs, out[lo:hi], w[y] * pmf)
+    return probs

@@ -1,0 +1,348 @@
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+from scipy.stats import chisquare
+
+from activetouch.config import ObservationConfig
+from activetouch.errors import ConfigError, DataError
+from activetouch.planning.observation_model import (
+    ObservationModel,
+    build_observation_model,
+    canonical_quat,
+    discretise,
+    movement_cost,
+    outcome_probabilities,
+    relative_pose,
+    rotation_angle,
+    sample_outcome,
+)
+from activetouch.recognition.histogram import HistogramSpec
+
+IDENTITY = [0.0, 0.0, 0.0, 1.0]
+# Three poses 0.13 m apart along x (translation cells 0, 2, 4), one off to the side.
+P0, P1, P2 = (np.array([x, 0.0, 0.0, *IDENTITY]) for x in (0.0, 0.13, 0.26))
+P3 = np.array([0.0, 0.3, 0.0, *IDENTITY])
+# Triangles (l0, l1, a0) in distinct cells of 0.08: (0,0,18), (1,1,25), (1,0,32).
+T1 = [0.05, 0.04, 1.5]
+T3 = [0.10, 0.09, 2.0]
+T4 = [0.13, 0.05, 2.6]
+SPEC = HistogramSpec(lo=np.array([0.0, 0.0, 1.0]), hi=np.array([0.2, 0.2, 3.2]), bins=2)
+
+
+def tri(*rows: list[float]) -> np.ndarray:
+    return np.array(rows, dtype=np.float64).reshape(-1, 3)
+
+
+def hand_built() -> list[tuple[str, np.ndarray, list[np.ndarray]]]:
+    a = ("a", np.stack([P0, P1, P2]), [tri(T1, T1), tri(T1, T3), tri(T4)])
+    b = ("b", np.stack([P0, P1, P3]), [tri(T1), tri(T4, T4, T3), tri()])
+    return [a, b]
+
+
+def action_of(model: ObservationModel, src: np.ndarray, dst: np.ndarray) -> int:
+    p, q = model.pose_index_of(src), model.pose_index_of(dst)
+    actions, targets = model.actions_from(p)
+    return int(actions[list(targets).index(q)])
+
+
+def row(model: ObservationModel, y: int, action: int, cell: int) -> dict[int, float]:
+    code = (y * model.n_actions + action) * model.n_cells + cell
+    r = int(np.searchsorted(model.tally_key, code))
+    assert model.tally_key[r] == code
+    lo, hi = model.tally_ptr[r], model.tally_ptr[r + 1]
+    pmf = np.diff(np.concatenate([[0.0], model.tally_cum[lo:hi]]))
+    return dict(zip(model.tally_out[lo:hi].tolist(), pmf.tolist(), strict=True))
+
+
+def has_row(model: ObservationModel, y: int, action: int, cell: int) -> bool:
+    code = (y * model.n_actions + action) * model.n_cells + cell
+    return code in set(model.tally_key.tolist())
+
+
+def triangle_outcome(model: ObservationModel, t: list[float]) -> int:
+    c = int(model.cells_of(tri(t))[0])
+    b = int(SPEC.bin_index(tri(t))[0])
+    hits = [
+        o
+        for o in range(model.n_outcomes)
+        if model.out_cell[o] == c and model.out_bin[model.out_ptr[o] : model.out_ptr[o + 1]] == [b]
+    ]
+    assert len(hits) == 1
+    return hits[0]
+
+
+def test_pose_math_properties() -> None:
+    rng = np.random.default_rng(0)
+    a = np.concatenate([rng.normal(size=(50, 3)), Rotation.random(50, random_state=1).as_quat()], 1)
+    b = np.concatenate([rng.normal(size=(50, 3)), Rotation.random(50, random_state=2).as_quat()], 1)
+    rel = relative_pose(a, b)
+    ra, rb = Rotation.from_quat(a[:, 3:]), Rotation.from_quat(b[:, 3:])
+    # b = a o rel
+    np.testing.assert_allclose(ra.apply(rel[:, :3]) + a[:, :3], b[:, :3], atol=1e-12)
+    np.testing.assert_allclose(
+        (ra * Rotation.from_quat(rel[:, 3:])).as_matrix(), rb.as_matrix(), atol=1e-12
+    )
+    assert np.all(rel[:, 6] >= 0)
+    np.testing.assert_allclose(relative_pose(a, a)[:, 3:], np.tile(IDENTITY, (50, 1)), atol=1e-12)
+    np.testing.assert_allclose(relative_pose(a, a)[:, :3], 0.0, atol=1e-12)
+    # Broadcasting one pose against many.
+    np.testing.assert_allclose(relative_pose(a[0], b), relative_pose(np.tile(a[0], (50, 1)), b))
+
+    cost = movement_cost(rel, 5.0)
+    assert np.all((cost >= 0) & (cost <= 1))
+    np.testing.assert_allclose(cost, movement_cost(relative_pose(b, a), 5.0), atol=1e-12)
+    flipped = rel.copy()
+    flipped[:, 3:] *= -1
+    np.testing.assert_allclose(movement_cost(flipped, 5.0), cost)
+    assert movement_cost(np.array([[0, 0, 0, *IDENTITY]]), 1.0)[0] == 0.0
+    assert movement_cost(np.array([[0.3, 0.4, 0, *IDENTITY]]), 0.5)[0] == pytest.approx(0.5)
+    assert movement_cost(np.array([[3.0, 0, 0, *IDENTITY]]), 0.5)[0] == pytest.approx(0.5)
+    half_turn = np.array([[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]])
+    assert movement_cost(half_turn, 1.0)[0] == pytest.approx(0.5)
+    assert rotation_angle(Rotation.from_rotvec([0, 0.7, 0]).as_quat()) == pytest.approx(0.7)
+
+
+def test_discretise_and_canonical_quat() -> None:
+    np.testing.assert_allclose(
+        discretise(np.array([0.119, -0.119, 0.12, 0.0599, -0.0001]), 0.06),
+        [0.06, -0.06, 0.12, 0.0, 0.0],
+        atol=1e-15,
+    )
+    q = canonical_quat(np.array([[0.1, 0.2, 0.3, -0.9], [-1.0, 0.0, 0.0, 0.0], [0, -1, 0, 0]]))
+    assert q[0, 3] > 0 and q[1, 0] > 0 and q[2, 1] > 0
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0)
+
+
+def test_hand_built_triangle_tallies() -> None:
+    m = build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="triangle"))
+    m.validate()
+    assert m.class_names == ("a", "b") and m.n_bins == 8
+    assert m.n_poses == 4 and len(m.edge_action) == 4 * 3
+    for p in range(4):
+        _, targets = m.actions_from(p)
+        assert sorted(targets.tolist()) == sorted(set(range(4)) - {p})
+    a_plus = action_of(m, P0, P1)
+    assert action_of(m, P1, P2) == a_plus  # same relative pose, same action
+    a_pp, a_minus = action_of(m, P0, P2), action_of(m, P1, P0)
+    assert action_of(m, P2, P1) == a_minus
+    np.testing.assert_allclose(m.action_delta[a_plus], [0.12, 0, 0, 0, 0, 0, 1.0])
+    c1, c3, c4 = m.cells_of(tri(T1, T3, T4)).tolist()
+    assert m.n_cells == 3 and m.cells_of(tri([0.3, 0.3, 0.1])).tolist() == [-1]
+    o1, o3, o4 = (triangle_outcome(m, t) for t in (T1, T3, T4))
+    assert m.n_outcomes == 3
+
+    # Class a, action +0.13: pair (0 -> 1) weighs n_0(c1) = 2, pair (1 -> 2) weighs 1.
+    assert row(m, 0, a_plus, c1) == pytest.approx({o1: 0.4, o3: 0.4, o4: 0.2})
+    assert row(m, 0, a_plus, c3) == pytest.approx({o4: 1.0})
+    assert not has_row(m, 0, a_plus, c4)  # nothing lies beyond pose 2
+    assert row(m, 0, a_pp, c1) == pytest.approx({o4: 1.0})
+    assert row(m, 0, a_minus, c1) == pytest.approx({o1: 1.0})
+    assert row(m, 0, a_minus, c4) == pytest.approx({o1: 0.5, o3: 0.5})
+    # Class b: grasp 0 (one T1) -> grasp 1 (T4, T4, T3).
+    assert row(m, 1, a_plus, c1) == pytest.approx({o4: 2 / 3, o3: 1 / 3})
+
+    # Eq. 4 mixture, both classes have a row.
+    p_y = np.array([0.3, 0.7])
+    want = np.zeros(3)
+    want[[o1, o3, o4]] = 0.3 * np.array([0.4, 0.4, 0.2]) + 0.7 * np.array([0, 1 / 3, 2 / 3])
+    np.testing.assert_allclose(outcome_probabilities(m, c1, a_plus, p_y), want)
+    # Only class a has a row for (a+, c3): p_y is renormalised onto it.
+    np.testing.assert_allclose(outcome_probabilities(m, c3, a_plus, p_y)[o4], 1.0)
+    # No class has (a+, c4): marginal rows. a: pairs (0->1) {T1, T3}, (1->2) {T4};
+    # b: (0->1) {T4, T4, T3}.
+    want = np.zeros(3)
+    want[[o1, o3, o4]] = 0.3 * np.array([1, 1, 1]) / 3 + 0.7 * np.array([0, 1 / 3, 2 / 3])
+    np.testing.assert_allclose(outcome_probabilities(m, c4, a_plus, p_y), want)
+    np.testing.assert_allclose(outcome_probabilities(m, -1, a_plus, p_y), want)
+    # Pose 3 exists only in class b, pose 2 only in class a: no data for that action.
+    a_none = action_of(m, P2, P3)
+    rng = np.random.default_rng(0)
+    assert sample_outcome(m, c1, a_none, p_y, rng) == -1
+    assert not outcome_probabilities(m, c1, a_none, p_y).any()
+    # A class the classifier rules out is never drawn.
+    draws = {sample_outcome(m, c1, a_plus, np.array([1.0, 0.0]), rng) for _ in range(200)}
+    assert draws == {o1, o3, o4}
+    draws = {sample_outcome(m, c1, a_plus, np.array([0.0, 1.0]), rng) for _ in range(200)}
+    assert draws == {o3, o4}
+
+
+def test_hand_built_grasp_tallies() -> None:
+    m = build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="grasp"))
+    m.validate()
+    a_plus = action_of(m, P0, P1)
+    c1, c3, c4 = m.cells_of(tri(T1, T3, T4)).tolist()
+    # Outcomes are (grasp, cell) pairs of grasps with triangles: a: g0{c1}, g1{c1,c3}, g2{c4};
+    # b: g0{c1}, g1{c4,c3}.
+    assert m.n_outcomes == 7
+    bins = SPEC.bin_index(tri(T1, T3, T4)).tolist()
+
+    def outcome(cell: int, grasp_bins: list[int]) -> int:
+        hits = [
+            o
+            for o in range(m.n_outcomes)
+            if m.out_cell[o] == cell
+            and sorted(m.out_bin[m.out_ptr[o] : m.out_ptr[o + 1]].tolist()) == sorted(grasp_bins)
+        ]
+        assert len(hits) == 1
+        return hits[0]
+
+    a1_c1, a1_c3 = outcome(c1, [bins[0], bins[1]]), outcome(c3, [bins[0], bins[1]])
+    a2_c4 = outcome(c4, [bins[2]])
+    b1_c4 = outcome(c4, [bins[2], bins[2], bins[1]])
+    b1_c3 = outcome(c3, [bins[2], bins[2], bins[1]])
+    # a: (0 -> 1) weighs n_0(c1) = 2 times n_1(c') = 1 each; (1 -> 2) weighs 1 * 1.
+    assert row(m, 0, a_plus, c1) == pytest.approx({a1_c1: 0.4, a1_c3: 0.4, a2_c4: 0.2})
+    # b: (0 -> 1): grasp 1 has two triangles in c4, one in c3.
+    assert row(m, 1, a_plus, c1) == pytest.approx({b1_c4: 2 / 3, b1_c3: 1 / 3})
+    probs = outcome_probabilities(m, c1, a_plus, np.array([0.5, 0.5]))
+    assert probs.sum() == pytest.approx(1.0)
+    assert probs[b1_c4] == pytest.approx(1 / 3)
+
+
+def random_objects(
+    rng: np.random.Generator, n_objects: int = 3
+) -> list[tuple[str, np.ndarray, list[np.ndarray]]]:
+    # A regular grid (three positions x two yaws), so many pose pairs share an action, and
+    # few triangle cells, so grasps hold several triangles per cell: the n_i(c) weights matter.
+    yaws = Rotation.from_rotvec([[0, 0, 0], [0, 0, np.pi / 2]]).as_quat()
+    grid = np.array([[x, 0.0, 0.0, *q] for x in (0.0, 0.13, 0.26) for q in yaws])
+    objs = []
+    for k in range(n_objects):
+        pick = rng.choice(len(grid), size=len(grid) - 1, replace=False)
+        tris = [
+            np.column_stack(
+                [rng.uniform(0.0, 0.2, n), rng.uniform(0.0, 0.2, n), rng.uniform(1.0, 1.3, n)]
+            )
+            for n in rng.integers(0, 9, len(pick))
+        ]
+        objs.append((f"obj{k}", grid[pick], tris))
+    return objs
+
+
+@pytest.mark.parametrize("granularity", ["triangle", "grasp"])
+def test_tallies_match_brute_force(granularity: str) -> None:
+    rng = np.random.default_rng(11)
+    objs = random_objects(rng)
+    m = build_observation_model(objs, SPEC, ObservationConfig(granularity=granularity))
+    m.validate()
+    # Outcome ids by what they are, to rebuild the tallies with plain loops and dicts.
+    out_of: dict[tuple, int] = {}
+    for o in range(m.n_outcomes):
+        out_of[
+            (int(m.out_cell[o]), *sorted(m.out_bin[m.out_ptr[o] : m.out_ptr[o + 1]].tolist()))
+        ] = o
+    counts: dict[tuple[int, int, int], dict[int, float]] = defaultdict(lambda: defaultdict(float))
+    marg: dict[tuple[int, int], dict[int, float]] = defaultdict(lambda: defaultdict(float))
+    for y, (_, poses, tris) in enumerate(objs):
+        for i in range(len(poses)):
+            for j in range(len(poses)):
+                pi, pj = m.pose_index_of(poses[i]), m.pose_index_of(poses[j])
+                if pi == pj:
+                    continue
+                acts, targets = m.actions_from(pi)
+                a = int(acts[list(targets).index(pj)])
+                cells_j = m.cells_of(tris[j]).tolist()
+                bins_j = SPEC.bin_index(tris[j]).tolist() if len(tris[j]) else []
+                outs = []
+                for cj, bj in zip(cells_j, bins_j, strict=True):
+                    key = (cj, bj) if granularity == "triangle" else (cj, *sorted(bins_j))
+                    outs.append(out_of[key])
+                for o in outs:
+                    marg[(y, a)][o] += 1
+                for ci in m.cells_of(tris[i]).tolist():
+                    for o in outs:
+                        counts[(y, a, ci)][o] += 1
+    got_rows = set()
+    for r, code in enumerate(m.tally_key.tolist()):
+        y, rest = divmod(code, m.n_actions * m.n_cells)
+        a, c = divmod(rest, m.n_cells)
+        want = counts[(y, a, c)]
+        total = sum(want.values())
+        assert row(m, y, a, c) == pytest.approx({o: v / total for o, v in want.items()})
+        got_rows.add((y, a, c))
+        assert m.tally_cum[m.tally_ptr[r + 1] - 1] == 1.0
+    assert got_rows == {k for k, v in counts.items() if v}
+    assert len(m.marg_key) == len([k for k, v in marg.items() if v])
+    for r, code in enumerate(m.marg_key.tolist()):
+        y, a = divmod(code, m.n_actions)
+        lo, hi = m.marg_ptr[r], m.marg_ptr[r + 1]
+        pmf = np.diff(np.concatenate([[0.0], m.marg_cum[lo:hi]]))
+        total = sum(marg[(y, a)].values())
+        want = {o: v / total for o, v in marg[(y, a)].items()}
+        assert dict(zip(m.marg_out[lo:hi].tolist(), pmf.tolist(), strict=True)) == pytest.approx(
+            want
+        )
+
+
+@pytest.mark.parametrize("granularity", ["triangle", "grasp"])
+def test_sampling_matches_exact_mixture(granularity: str) -> None:
+    rng = np.random.default_rng(5)
+    objs = random_objects(rng)
+    m = build_observation_model(objs, SPEC, ObservationConfig(granularity=granularity))
+    p_y = np.array([0.2, 0.5, 0.3])
+    # Pick the (cell, action) with the most mixed classes and outcomes, plus a fallback query.
+    codes = m.tally_key
+    rest = codes % (m.n_actions * m.n_cells)
+    a, c = np.divmod(rest, m.n_cells)
+    pairs, n_classes = np.unique(a * m.n_cells + c, return_counts=True)
+    best = pairs[np.argmax(n_classes)]
+    queries = [(int(best % m.n_cells), int(best // m.n_cells)), (-1, int(a[0]))]
+    for cell, action in queries:
+        probs = outcome_probabilities(m, cell, action, p_y)
+        assert probs.sum() == pytest.approx(1.0)
+        n = 6000
+        draws = np.array([sample_outcome(m, cell, action, p_y, rng) for _ in range(n)])
+        support = np.flatnonzero(probs > 0)
+        assert np.isin(draws, support).all()
+        observed = np.bincount(draws, minlength=m.n_outcomes)[support]
+        assert len(support) >= 2
+        assert chisquare(observed, probs[support] * n).pvalue > 1e-3
+
+
+def test_pose_dedupe_and_lookup() -> None:
+    q = Rotation.from_rotvec([0, 0, 0.3]).as_quat()
+    near = np.array([0.01, 0.0, 0.0, *q])
+    flipped = np.array([0.02, 0.0, 0.0, *(-q)])  # same cell, same rotation with the other sign
+    far = np.array([0.3, 0.0, 0.0, *q])
+    objs = [("a", np.stack([near, far]), [tri(T1), tri(T3)]), ("b", flipped[None], [tri(T4)])]
+    m = build_observation_model(objs, SPEC, ObservationConfig())
+    assert m.n_poses == 2
+    np.testing.assert_allclose(m.pose_xyz[0], near[:3])  # the first pose met represents it
+    assert m.pose_index_of(flipped) == 0
+    assert m.pose_index_of(np.array([0.28, 0.01, 0.0, *q])) == 1
+    assert m.max_translation == pytest.approx(0.29)
+    assert np.all((m.action_cost >= 0) & (m.action_cost <= 1))
+
+
+def test_storage_round_trip_and_validation() -> None:
+    m = build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="grasp"))
+    again = ObservationModel.from_parts(m.scalars(), m.arrays())
+    assert again.scalars() == m.scalars()
+    for k, v in m.arrays().items():
+        np.testing.assert_array_equal(getattr(again, k), v)
+    broken = dict(m.arrays(), tally_out=m.tally_out + m.n_outcomes)
+    with pytest.raises(DataError, match="tally_out"):
+        ObservationModel.from_parts(m.scalars(), broken)
+    short = dict(m.arrays(), tally_cum=m.tally_cum[:-1])
+    with pytest.raises(DataError, match="tally_cum"):
+        ObservationModel.from_parts(m.scalars(), short)
+    arrays = m.arrays()
+    del arrays["edge_ptr"]
+    with pytest.raises(DataError, match="lacks edge_ptr"):
+        ObservationModel.from_parts(m.scalars(), arrays)
+
+
+def test_bad_inputs() -> None:
+    with pytest.raises(ConfigError, match="granularity"):
+        build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="pixel"))
+    with pytest.raises(ConfigError, match="triangle_cell"):
+        build_observation_model(hand_built(), SPEC, ObservationConfig(triangle_cell=0.0))
+    with pytest.raises(DataError, match="2 poses but 1"):
+        build_observation_model([("a", np.stack([P0, P1]), [tri(T1)])], SPEC, ObservationConfig())
+    m = build_observation_model(hand_built(), SPEC, ObservationConfig())
+    with pytest.raises(ValueError, match="p_y"):
+        outcome_probabilities(m, 0, action_of(m, P0, P1), np.array([1.0]))
