@@ -1,0 +1,911 @@
+"""Monte Carlo tree search over wrist poses (Zhang et al. IROS 2017, Sec. IV, Algs. 2-4).
+
+One tree search (Alg. 3 run `simulations` times from a fresh root, then Alg. 2's path pick):
+
+- **Selection** (Eq. 3): at a node, an action edge never followed from it is taken first
+  (uniformly among them); once every edge has been followed, UCT
+  ``argmax_a Q_a + c sqrt(2 ln N / N_a)`` with ``Q_a = 1 - C_a`` the running-mean reward and
+  ``N = sum_a N_a``.
+- **Next observation** (Eq. 4): ``z' ~ sum_y p(z' | z, a, y) p(y | h_t)``: a class is drawn
+  from ``p(y | h_t)`` restricted to the classes that have a tally row for (y, a, z); with none,
+  the classes with a marginal row for (y, a); with none of those either the step observes
+  nothing (the histogram is unchanged and the next step has no conditioning cell). Then an
+  outcome is drawn from that row and its bins are added to the simulated histogram.
+- **Expansion**: one new node per simulation at most; the tree policy stops there.
+- **Rollout**: uniformly random unvisited edges down to depth T (a temporary path, not stored).
+- **Cost** (Eq. 1): ``C = lam / T * sum_t c_m(a_t) + (1 - lam) * (1 - max_y p(y | h_T))`` with
+  ``p`` the classifier kernel on the simulated histogram counts; reward ``r = 1 - C``.
+- **Backup**: every edge on the stored path gets ``N_a += 1, Q_a += (r - Q_a) / N_a``. Like the
+  paper ("C_{t_a} is C_T(pi)"), every depth stores the whole path's reward, so the value of
+  an edge deep in the tree estimates the cost of the full root-to-leaf path.
+- **No pose twice**: an edge whose target pose was already executed (the root is given
+  them) or lies earlier on the simulated path is never taken.
+- **Path extraction**: from the root follow the highest-Q edge (ties: more visits), then its
+  most visited outcome child, until a leaf or depth T.
+
+Node identity. An edge is a transition of the model (action a, target pose), so a child is
+keyed by (edge, outcome cell): the paper's nodes are observations under an action edge and
+observations are stochastic, so one edge can have several children, one per cell the
+sampled observation left behind (cell -1: nothing observed). A node therefore fixes its pose,
+its cell and its ancestry (hence the set of poses it may not revisit), but not the exact
+histogram: outcomes with equal cells share a node, and each simulation keeps its own
+histogram by adding its sampled outcomes along the path (and removing them afterwards).
+
+Layout. The tree is a structure of preallocated arrays sized from the simulation budget:
+at most one node and one edge record are created per simulation (an edge record is created
+only when an untried edge is taken, whose child then cannot exist yet). Edge records of a node
+form a singly linked list (``rec_next``), as do the children of an edge record
+(``rec_child`` / ``node_sibling``), so memory grows with simulations, not with the ~1000
+edges per pose. The simulation loop is one numba function (``cache=True``); its random draws
+come from numba's own generator, seeded inside the compiled code with a value drawn from the
+caller's ``numpy.random.Generator`` — equal generator states give equal trees.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from activetouch.errors import PlanningError
+from activetouch.planning.observation_model import ObservationModel
+from activetouch.recognition.classifiers import (
+    _Z_CLIP,
+    KIND_LINEAR_OVR,
+    KIND_NN_INTERSECTION,
+    ClassifierKernel,
+    kernel_proba,
+)
+
+# Draws before a uniform pick among the remaining edges falls back to a full scan.
+_REJECTION_TRIES = 32
+
+
+# --------------------------------------------------------------------------------------------
+# Compiled pieces
+# --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def seed_numba(seed: int) -> None:
+    """Seed numba's generator (separate from numpy's global one); for tests of the pieces."""
+    np.random.seed(seed)
+
+
+@njit(cache=True)
+def _find_key(keys: np.ndarray, key: int) -> int:
+    """Index of `key` in the ascending array `keys`, or -1."""
+    lo = 0
+    hi = keys.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if keys[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    if lo < keys.shape[0] and keys[lo] == key:
+        return lo
+    return -1
+
+
+@njit(cache=True)
+def _draw_in_row(ptr: np.ndarray, out: np.ndarray, cum: np.ndarray, row: int) -> int:
+    """An outcome from one tally row: the first entry whose cumulative probability exceeds u."""
+    s = ptr[row]
+    e = ptr[row + 1]
+    u = np.random.random()
+    lo = s
+    hi = e - 1  # the last entry catches u at (or rounding above) the row's end
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if cum[mid] > u:
+            hi = mid
+        else:
+            lo = mid + 1
+    return out[lo]
+
+
+@njit(cache=True)
+def _proba_full(kern: tuple, hist: np.ndarray) -> np.ndarray:
+    return kernel_proba(
+        kern[0], kern[1], kern[2], kern[3], kern[4], kern[5], kern[6], kern[7], hist
+    )
+
+
+# Incremental classifier state: for kernels whose scores are linear in h (KIND_LINEAR_OVR and
+# KIND_NN_INNER) a simulation keeps S = [W h (M values), sum(h), ||h||^2] and updates it per
+# added triangle in O(M) instead of re-evaluating W h in O(M D) for every p(y | h_t) it needs.
+# _proba_scores is kernel_proba's maths on that state (tested equal to 1e-9); other kinds
+# fall back to kernel_proba on the histogram.
+
+
+@njit(cache=True)
+def _scores_init(kern: tuple, hist: np.ndarray, S: np.ndarray) -> None:
+    W = kern[1]
+    M, D = W.shape
+    total = 0.0
+    sq = 0.0
+    for i in range(D):
+        total += hist[i]
+        sq += hist[i] * hist[i]
+    for m in range(M):
+        s = 0.0
+        for i in range(D):
+            s += W[m, i] * hist[i]
+        S[m] = s
+    S[M] = total
+    S[M + 1] = sq
+
+
+@njit(cache=True)
+def _scores_add(
+    kern: tuple, out_ptr: np.ndarray, out_bin: np.ndarray, o: int, hist: np.ndarray, S: np.ndarray
+) -> None:
+    """Add outcome `o`'s triangles to the histogram (and to S when the kernel is linear)."""
+    WT = kern[8]
+    M = WT.shape[1]
+    linear = kern[0] != KIND_NN_INTERSECTION
+    for k in range(out_ptr[o], out_ptr[o + 1]):
+        j = out_bin[k]
+        if linear:
+            for m in range(M):
+                S[m] += WT[j, m]
+            S[M] += 1.0
+            S[M + 1] += 2.0 * hist[j] + 1.0
+        hist[j] += 1.0
+
+
+@njit(cache=True)
+def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
+    kind = kern[0]
+    if kind == KIND_NN_INTERSECTION:
+        return _proba_full(kern, hist)
+    b, row_class, platt_a, platt_b, temperature, n_classes = (
+        kern[2],
+        kern[3],
+        kern[4],
+        kern[5],
+        kern[6],
+        kern[7],
+    )
+    M = S.shape[0] - 2
+    total = S[M]
+    out = np.zeros(n_classes)
+    if total <= 0.0:
+        for k in range(n_classes):
+            out[k] = 1.0 / n_classes
+        return out
+    if kind == KIND_LINEAR_OVR:
+        inv = 1.0 / total
+        for m in range(M):
+            z = platt_a[m] * (S[m] * inv + b[m]) + platt_b[m]
+            z = min(max(z, -_Z_CLIP), _Z_CLIP)
+            out[row_class[m]] += 1.0 / (1.0 + np.exp(z))
+    else:
+        dmin = np.full(n_classes, np.inf)
+        norm = np.sqrt(S[M + 1])
+        for m in range(M):
+            d = 1.0 - min(1.0, abs(S[m]) / norm)
+            if d < dmin[row_class[m]]:
+                dmin[row_class[m]] = d
+        best = np.inf
+        for k in range(n_classes):
+            if dmin[k] < best:
+                best = dmin[k]
+        for k in range(n_classes):
+            out[k] = np.exp(-(dmin[k] - best) / temperature)
+    norm_p = 0.0
+    for k in range(n_classes):
+        norm_p += out[k]
+    if norm_p <= 0.0:
+        for k in range(n_classes):
+            out[k] = 1.0 / n_classes
+        return out
+    for k in range(n_classes):
+        out[k] /= norm_p
+    return out
+
+
+@njit(cache=True)
+def _sample_outcome(
+    m: tuple,
+    kern: tuple,
+    action: int,
+    cell: int,
+    hist: np.ndarray,
+    S: np.ndarray,
+    rows: np.ndarray,
+    counters: np.ndarray,
+) -> int:
+    """Eq. 4: an outcome id for taking `action` from conditioning `cell` (-1: none), or -1."""
+    (
+        _edge_ptr,
+        _edge_action,
+        _edge_target,
+        _action_cost,
+        _out_cell,
+        _out_ptr,
+        _out_bin,
+        tally_key,
+        tally_ptr,
+        tally_out,
+        tally_cum,
+        marg_key,
+        marg_ptr,
+        marg_out,
+        marg_cum,
+        n_actions,
+        n_cells,
+    ) = m
+    n_classes = rows.shape[0]
+    found = 0
+    use_marg = False
+    if 0 <= cell < n_cells:
+        for y in range(n_classes):
+            r = _find_key(tally_key, (y * n_actions + action) * n_cells + cell)
+            rows[y] = r
+            if r >= 0:
+                found += 1
+    if found == 0:
+        use_marg = True
+        for y in range(n_classes):
+            r = _find_key(marg_key, y * n_actions + action)
+            rows[y] = r
+            if r >= 0:
+                found += 1
+    if found == 0:
+        counters[2] += 1
+        return -1
+    counters[1 if use_marg else 0] += 1
+    if found == 1:
+        ysel = 0
+        for y in range(n_classes):
+            if rows[y] >= 0:
+                ysel = y
+    else:
+        # p(y | h_t) only matters when several classes could have produced the observation.
+        p = _proba_scores(kern, hist, S)
+        total = 0.0
+        for y in range(n_classes):
+            if rows[y] >= 0:
+                total += p[y]
+        ysel = -1
+        if total > 0.0:
+            u = np.random.random() * total
+            acc = 0.0
+            for y in range(n_classes):
+                if rows[y] >= 0:
+                    acc += p[y]
+                    ysel = y
+                    if u < acc:
+                        break
+        else:  # every candidate class has zero probability: treat them alike
+            k = np.random.randint(0, found)
+            for y in range(n_classes):
+                if rows[y] >= 0:
+                    if k == 0:
+                        ysel = y
+                        break
+                    k -= 1
+    if use_marg:
+        return _draw_in_row(marg_ptr, marg_out, marg_cum, rows[ysel])
+    return _draw_in_row(tally_ptr, tally_out, tally_cum, rows[ysel])
+
+
+@njit(cache=True)
+def _add_outcome(out_ptr: np.ndarray, out_bin: np.ndarray, o: int, hist: np.ndarray, sign: float):
+    for i in range(out_ptr[o], out_ptr[o + 1]):
+        hist[out_bin[i]] += sign
+
+
+@njit(cache=True)
+def _random_edge(edge_ptr: np.ndarray, edge_target: np.ndarray, pose: int, used: np.ndarray) -> int:
+    """A uniformly random edge out of `pose` whose target is not used, or -1."""
+    base = edge_ptr[pose]
+    deg = edge_ptr[pose + 1] - base
+    if deg == 0:
+        return -1
+    for _ in range(_REJECTION_TRIES):
+        e = base + np.random.randint(0, deg)
+        if not used[edge_target[e]]:
+            return e
+    n_ok = 0
+    for e in range(base, base + deg):
+        if not used[edge_target[e]]:
+            n_ok += 1
+    if n_ok == 0:
+        return -1
+    k = np.random.randint(0, n_ok)
+    for e in range(base, base + deg):
+        if not used[edge_target[e]]:
+            if k == 0:
+                return e
+            k -= 1
+    return -1
+
+
+@njit(cache=True)
+def _select(
+    node: int,
+    edge_ptr: np.ndarray,
+    edge_target: np.ndarray,
+    used: np.ndarray,
+    c: float,
+    nodes: tuple,
+    recs: tuple,
+    n_recs: np.ndarray,
+    mark: np.ndarray,
+) -> int:
+    """Edge record to follow from `node` (created if the edge is new), or -1 if none is left."""
+    node_pose, _nd, _nc, _nin, _nsib, node_first, node_sel, _nvis, node_full = nodes
+    rec_node, rec_edge, rec_n, rec_q, rec_next, rec_child = recs
+    pose = node_pose[node]
+    base = edge_ptr[pose]
+    deg = edge_ptr[pose + 1] - base
+    if deg == 0:
+        node_full[node] = True
+    if not node_full[node]:
+        # Unvisited edges first: mark the tried ones, draw uniformly among the others.
+        r = node_first[node]
+        while r >= 0:
+            mark[rec_edge[r] - base] = True
+            r = rec_next[r]
+        pick = -1
+        for _ in range(_REJECTION_TRIES):
+            j = np.random.randint(0, deg)
+            if not mark[j] and not used[edge_target[base + j]]:
+                pick = j
+                break
+        if pick < 0:
+            n_ok = 0
+            for j in range(deg):
+                if not mark[j] and not used[edge_target[base + j]]:
+                    n_ok += 1
+            if n_ok > 0:
+                k = np.random.randint(0, n_ok)
+                for j in range(deg):
+                    if not mark[j] and not used[edge_target[base + j]]:
+                        if k == 0:
+                            pick = j
+                            break
+                        k -= 1
+        r = node_first[node]
+        while r >= 0:
+            mark[rec_edge[r] - base] = False
+            r = rec_next[r]
+        if pick >= 0:
+            nr = n_recs[0]
+            n_recs[0] = nr + 1
+            rec_node[nr] = node
+            rec_edge[nr] = base + pick
+            rec_n[nr] = 0
+            rec_q[nr] = 0.0
+            rec_child[nr] = -1
+            rec_next[nr] = node_first[node]
+            node_first[node] = nr
+            return nr
+        node_full[node] = True
+    # UCT (Eq. 3) over the edges already followed.
+    best = -1
+    best_v = -np.inf
+    log_n = np.log(max(node_sel[node], 1))
+    r = node_first[node]
+    while r >= 0:
+        v = rec_q[r] + c * np.sqrt(2.0 * log_n / rec_n[r])
+        if v > best_v:
+            best_v = v
+            best = r
+        r = rec_next[r]
+    return best
+
+
+@njit(cache=True)
+def _run_simulations(
+    m: tuple,
+    kern: tuple,
+    root_pose: int,
+    used: np.ndarray,
+    hist: np.ndarray,
+    root_cells: np.ndarray,
+    horizon: int,
+    n_sims: int,
+    c: float,
+    lam: float,
+    seed: int,
+    nodes: tuple,
+    recs: tuple,
+    mark: np.ndarray,
+    counters: np.ndarray,
+) -> tuple:
+    """Run the simulations; returns (nodes used, edge records used). `used` and `hist` are
+    modified during a simulation and restored after it."""
+    (
+        edge_ptr,
+        edge_action,
+        edge_target,
+        action_cost,
+        out_cell,
+        out_ptr,
+        out_bin,
+        _tk,
+        _tp,
+        _to,
+        _tc,
+        _mk,
+        _mp,
+        _mo,
+        _mc,
+        _na,
+        _nc,
+    ) = m
+    (
+        node_pose,
+        node_depth,
+        node_cell,
+        node_in,
+        node_sibling,
+        node_first,
+        node_sel,
+        node_vis,
+        node_full,
+    ) = nodes
+    rec_node, rec_edge, rec_n, rec_q, _rec_next, rec_child = recs
+    np.random.seed(seed)
+    n_classes = kern[7]
+    rows = np.empty(n_classes, dtype=np.int64)
+    M = kern[1].shape[0]
+    S0 = np.empty(M + 2)
+    _scores_init(kern, hist, S0)
+    S = S0.copy()
+    path_recs = np.empty(horizon, dtype=np.int64)
+    path_pose = np.empty(horizon, dtype=np.int64)
+    path_out = np.empty(horizon, dtype=np.int64)
+    n_recs = np.zeros(1, dtype=np.int64)
+
+    node_pose[0] = root_pose
+    node_depth[0] = 0
+    node_cell[0] = -1
+    node_in[0] = -1
+    node_sibling[0] = -1
+    node_first[0] = -1
+    node_sel[0] = 0
+    node_vis[0] = 0
+    node_full[0] = False
+    n_nodes = 1
+
+    for _sim in range(n_sims):
+        node = 0
+        node_vis[0] += 1
+        depth = 0
+        n_tree = 0
+        pose = root_pose
+        cell = (
+            root_cells[np.random.randint(0, root_cells.shape[0])] if root_cells.shape[0] > 0 else -1
+        )
+        move = 0.0
+        # Tree policy (Alg. 4) until a node is created, depth T, or no edge is left.
+        while depth < horizon:
+            rec = _select(node, edge_ptr, edge_target, used, c, nodes, recs, n_recs, mark)
+            if rec < 0:
+                break
+            e = rec_edge[rec]
+            a = edge_action[e]
+            move += action_cost[a]
+            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters)
+            if o >= 0:
+                _scores_add(kern, out_ptr, out_bin, o, hist, S)
+                cell = out_cell[o]
+            else:
+                cell = -1
+            pose = edge_target[e]
+            used[pose] = True
+            path_pose[depth] = pose
+            path_out[depth] = o
+            path_recs[n_tree] = rec
+            n_tree += 1
+            depth += 1
+            child = rec_child[rec]
+            while child >= 0 and node_cell[child] != cell:
+                child = node_sibling[child]
+            if child < 0:
+                child = n_nodes
+                n_nodes += 1
+                node_pose[child] = pose
+                node_depth[child] = depth
+                node_cell[child] = cell
+                node_in[child] = rec
+                node_sibling[child] = rec_child[rec]
+                rec_child[rec] = child
+                node_first[child] = -1
+                node_sel[child] = 0
+                node_vis[child] = 1
+                node_full[child] = False
+                node = child
+                break
+            node = child
+            node_vis[child] += 1
+        # Rollout: random unvisited poses down to depth T.
+        while depth < horizon:
+            e = _random_edge(edge_ptr, edge_target, pose, used)
+            if e < 0:
+                break
+            a = edge_action[e]
+            move += action_cost[a]
+            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters)
+            if o >= 0:
+                _scores_add(kern, out_ptr, out_bin, o, hist, S)
+                cell = out_cell[o]
+            else:
+                cell = -1
+            pose = edge_target[e]
+            used[pose] = True
+            path_pose[depth] = pose
+            path_out[depth] = o
+            depth += 1
+        # Eq. 1 on the simulated histogram h_T.
+        p = _proba_scores(kern, hist, S)
+        pmax = 0.0
+        for y in range(p.shape[0]):
+            if p[y] > pmax:
+                pmax = p[y]
+        reward = 1.0 - (lam / horizon * move + (1.0 - lam) * (1.0 - pmax))
+        # Backup: running mean of the whole path's reward at every stored edge.
+        for i in range(n_tree):
+            rec = path_recs[i]
+            rec_n[rec] += 1
+            rec_q[rec] += (reward - rec_q[rec]) / rec_n[rec]
+            node_sel[rec_node[rec]] += 1
+        # Undo this simulation's poses and observations.
+        for i in range(depth):
+            used[path_pose[i]] = False
+            if path_out[i] >= 0:
+                _add_outcome(out_ptr, out_bin, path_out[i], hist, -1.0)
+        S[:] = S0
+    return n_nodes, n_recs[0]
+
+
+@njit(cache=True)
+def _extract_path(horizon: int, nodes: tuple, recs: tuple, out_recs: np.ndarray) -> int:
+    """Max-reward root-to-leaf path: edge records into `out_recs`; returns its length."""
+    _np, _nd, _nc, _ni, node_sibling, node_first, _ns, node_vis, _nf = nodes
+    _rn, _re, rec_n, rec_q, rec_next, rec_child = recs
+    node = 0
+    k = 0
+    while k < horizon:
+        best = -1
+        r = node_first[node]
+        while r >= 0:
+            if rec_n[r] > 0 and (
+                best < 0
+                or rec_q[r] > rec_q[best]
+                or (rec_q[r] == rec_q[best] and rec_n[r] > rec_n[best])
+            ):
+                best = r
+            r = rec_next[r]
+        if best < 0:
+            break
+        out_recs[k] = best
+        k += 1
+        child = rec_child[best]
+        nxt = child
+        while child >= 0:
+            if node_vis[child] > node_vis[nxt]:
+                nxt = child
+            child = node_sibling[child]
+        if nxt < 0:
+            break
+        node = nxt
+    return k
+
+
+# --------------------------------------------------------------------------------------------
+# Python side
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Tree:
+    """Structure-of-arrays storage for one search; `capacity` simulations fit."""
+
+    capacity: int
+    max_degree: int
+    # Nodes (capacity + 1): pose, depth, cell (-1 none), incoming edge record, next sibling
+    # under the same edge record, first outgoing edge record, selections made from the node
+    # (N in Eq. 3), visits, and whether every edge has been tried.
+    node_pose: np.ndarray
+    node_depth: np.ndarray
+    node_cell: np.ndarray
+    node_in: np.ndarray
+    node_sibling: np.ndarray
+    node_first: np.ndarray
+    node_sel: np.ndarray
+    node_vis: np.ndarray
+    node_full: np.ndarray
+    # Edge records (capacity): owning node, model edge id, N_a, Q_a, next record of the same
+    # node, first child node.
+    rec_node: np.ndarray
+    rec_edge: np.ndarray
+    rec_n: np.ndarray
+    rec_q: np.ndarray
+    rec_next: np.ndarray
+    rec_child: np.ndarray
+    mark: np.ndarray  # (max_degree,) scratch: tried edges of the node being expanded
+
+    @classmethod
+    def allocate(cls, capacity: int, max_degree: int) -> Tree:
+        n = capacity + 1
+        i64 = np.int64
+        return cls(
+            capacity=capacity,
+            max_degree=max_degree,
+            node_pose=np.empty(n, i64),
+            node_depth=np.empty(n, i64),
+            node_cell=np.empty(n, i64),
+            node_in=np.empty(n, i64),
+            node_sibling=np.empty(n, i64),
+            node_first=np.empty(n, i64),
+            node_sel=np.empty(n, i64),
+            node_vis=np.empty(n, i64),
+            node_full=np.empty(n, np.bool_),
+            rec_node=np.empty(capacity, i64),
+            rec_edge=np.empty(capacity, i64),
+            rec_n=np.empty(capacity, i64),
+            rec_q=np.empty(capacity, np.float64),
+            rec_next=np.empty(capacity, i64),
+            rec_child=np.empty(capacity, i64),
+            mark=np.zeros(max(max_degree, 1), np.bool_),
+        )
+
+    def node_arrays(self) -> tuple:
+        return (
+            self.node_pose,
+            self.node_depth,
+            self.node_cell,
+            self.node_in,
+            self.node_sibling,
+            self.node_first,
+            self.node_sel,
+            self.node_vis,
+            self.node_full,
+        )
+
+    def rec_arrays(self) -> tuple:
+        return (self.rec_node, self.rec_edge, self.rec_n, self.rec_q, self.rec_next, self.rec_child)
+
+    @property
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in (*self.node_arrays(), *self.rec_arrays(), self.mark))
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """A tree search's answer. `exhausted`: no unvisited pose was reachable from the root
+    (then the path is empty and `value` is nan)."""
+
+    exhausted: bool
+    poses: np.ndarray  # (n,) int64 target pose ids, in execution order, n <= horizon
+    actions: np.ndarray  # (n,) int64 action ids
+    edges: np.ndarray  # (n,) int64 model edge ids
+    value: float  # backed-up reward 1 - C of the path: Q of its deepest edge
+    step_values: np.ndarray  # (n,) Q of each edge on the path
+    step_visits: np.ndarray  # (n,) N_a of each edge on the path
+    n_nodes: int
+    n_edge_records: int
+    simulations: int
+    # Eq. 4 steps resolved by a (y, a, z) tally row, by a (y, a) marginal row, by neither.
+    observation_sources: tuple[int, int, int]
+    tree: Tree | None = None
+
+    @property
+    def cost(self) -> float:
+        return 1.0 - self.value
+
+
+def kernel_tuple(kernel: ClassifierKernel) -> tuple:
+    """The classifier kernel as the argument tuple the compiled code takes."""
+    f64 = np.float64
+    return (
+        np.int64(kernel.kind),
+        np.ascontiguousarray(kernel.W, dtype=f64),
+        np.ascontiguousarray(kernel.b, dtype=f64),
+        np.ascontiguousarray(kernel.row_class, dtype=np.int64),
+        np.ascontiguousarray(kernel.platt_a, dtype=f64),
+        np.ascontiguousarray(kernel.platt_b, dtype=f64),
+        f64(kernel.temperature),
+        np.int64(kernel.n_classes),
+        np.ascontiguousarray(np.asarray(kernel.W, dtype=f64).T),  # columns per bin, contiguous
+    )
+
+
+def model_tuple(model: ObservationModel) -> tuple:
+    """The observation model as the argument tuple the compiled code takes."""
+
+    def i64(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=np.int64)
+
+    def f64(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    return (
+        i64(model.edge_ptr),
+        i64(model.edge_action),
+        i64(model.edge_target),
+        f64(model.action_cost),
+        i64(model.out_cell),
+        i64(model.out_ptr),
+        i64(model.out_bin),
+        i64(model.tally_key),
+        i64(model.tally_ptr),
+        i64(model.tally_out),
+        f64(model.tally_cum),
+        i64(model.marg_key),
+        i64(model.marg_ptr),
+        i64(model.marg_out),
+        f64(model.marg_cum),
+        np.int64(model.n_actions),
+        np.int64(model.n_cells),
+    )
+
+
+def unvisited_targets(model: ObservationModel, pose: int, visited: np.ndarray) -> np.ndarray:
+    """Edge ids out of `pose` whose target is neither `pose` nor in `visited`."""
+    lo, hi = int(model.edge_ptr[pose]), int(model.edge_ptr[pose + 1])
+    targets = model.edge_target[lo:hi]
+    bad = np.zeros(model.n_poses, dtype=bool)
+    bad[np.asarray(visited, dtype=np.int64)] = True
+    bad[pose] = True
+    return lo + np.flatnonzero(~bad[targets])
+
+
+class TreeSearch:
+    """The planner's search, bound to one observation model and classifier kernel.
+
+    Converts the arrays once and keeps the tree storage between searches (it grows when a
+    larger simulation budget is asked for), so repeated planning allocates nothing new."""
+
+    def __init__(self, model: ObservationModel, kernel: ClassifierKernel) -> None:
+        if kernel.n_classes != model.n_classes:
+            raise PlanningError(
+                f"classifier has {kernel.n_classes} classes, observation model "
+                f"{model.n_classes} ({', '.join(model.class_names)})"
+            )
+        if kernel.W.shape[1] != model.n_bins:
+            raise PlanningError(
+                f"classifier expects {kernel.W.shape[1]}-bin histograms, observation model "
+                f"has {model.n_bins} bins"
+            )
+        self.model = model
+        self.kernel = kernel
+        self._m = model_tuple(model)
+        self._k = kernel_tuple(kernel)
+        deg = np.diff(model.edge_ptr)
+        self.max_degree = int(deg.max()) if deg.size else 0
+        self._tree: Tree | None = None
+
+    def _tree_for(self, simulations: int) -> Tree:
+        if self._tree is None or self._tree.capacity < simulations:
+            self._tree = Tree.allocate(simulations, self.max_degree)
+        return self._tree
+
+    def search(
+        self,
+        pose: int,
+        visited: np.ndarray,
+        counts: np.ndarray,
+        cells: np.ndarray,
+        *,
+        horizon: int,
+        simulations: int,
+        rng: np.random.Generator,
+        exploration_c: float = 1.0,
+        lam: float = 0.5,
+        keep_tree: bool = False,
+    ) -> SearchResult:
+        """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
+
+        `visited`: pose ids already executed (never targets; `pose` itself is added).
+        `counts`: the real histogram so far (n_bins,). `cells`: conditioning cells of the last
+        real grasp (one is drawn per simulation; empty: no conditioning, marginal rows)."""
+        model = self.model
+        if not 0 <= pose < model.n_poses:
+            raise PlanningError(f"pose id {pose} outside the model's {model.n_poses} poses")
+        if horizon < 1:
+            raise PlanningError(f"planning horizon must be >= 1, got {horizon}")
+        if simulations < 1:
+            raise PlanningError(f"number of simulations must be >= 1, got {simulations}")
+        hist = np.array(counts, dtype=np.float64).reshape(-1)
+        if hist.shape[0] != model.n_bins:
+            raise PlanningError(
+                f"histogram has {hist.shape[0]} bins, the observation model {model.n_bins}"
+            )
+        visited = np.asarray(visited, dtype=np.int64).reshape(-1)
+        if visited.size and (visited.min() < 0 or visited.max() >= model.n_poses):
+            raise PlanningError(f"visited pose ids must lie in [0, {model.n_poses})")
+        cells = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1)
+        seed = int(rng.integers(0, 2**31 - 1))
+        empty = np.zeros(0, dtype=np.int64)
+        if unvisited_targets(model, pose, visited).size == 0:
+            return SearchResult(
+                exhausted=True,
+                poses=empty,
+                actions=empty,
+                edges=empty,
+                value=float("nan"),
+                step_values=np.zeros(0),
+                step_visits=empty,
+                n_nodes=0,
+                n_edge_records=0,
+                simulations=0,
+                observation_sources=(0, 0, 0),
+            )
+        used = np.zeros(model.n_poses, dtype=np.bool_)
+        used[visited] = True
+        used[pose] = True
+        tree = self._tree_for(simulations)
+        nodes, recs = tree.node_arrays(), tree.rec_arrays()
+        counters = np.zeros(3, dtype=np.int64)
+        n_nodes, n_recs = _run_simulations(
+            self._m,
+            self._k,
+            np.int64(pose),
+            used,
+            hist,
+            cells,
+            np.int64(horizon),
+            np.int64(simulations),
+            np.float64(exploration_c),
+            np.float64(lam),
+            np.int64(seed),
+            nodes,
+            recs,
+            tree.mark,
+            counters,
+        )
+        path = np.empty(horizon, dtype=np.int64)
+        k = int(_extract_path(np.int64(horizon), nodes, recs, path))
+        path = path[:k]
+        edges = tree.rec_edge[path].copy()
+        step_values = tree.rec_q[path].copy()
+        return SearchResult(
+            exhausted=False,
+            poses=model.edge_target[edges].astype(np.int64),
+            actions=model.edge_action[edges].astype(np.int64),
+            edges=edges,
+            value=float(step_values[-1]),
+            step_values=step_values,
+            step_visits=tree.rec_n[path].copy(),
+            n_nodes=int(n_nodes),
+            n_edge_records=int(n_recs),
+            simulations=simulations,
+            observation_sources=(int(counters[0]), int(counters[1]), int(counters[2])),
+            tree=tree if keep_tree else None,
+        )
+
+
+def search(
+    model: ObservationModel,
+    kernel: ClassifierKernel,
+    pose: int,
+    visited: np.ndarray,
+    counts: np.ndarray,
+    cells: np.ndarray,
+    *,
+    horizon: int,
+    simulations: int,
+    rng: np.random.Generator,
+    exploration_c: float = 1.0,
+    lam: float = 0.5,
+) -> SearchResult:
+    """One-off tree search (see `TreeSearch.search`)."""
+    return TreeSearch(model, kernel).search(
+        pose,
+        visited,
+        counts,
+        cells,
+        horizon=horizon,
+        simulations=simulations,
+        rng=rng,
+        exploration_c=exploration_c,
+        lam=lam,
+    )
