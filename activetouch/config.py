@@ -97,6 +97,12 @@ class SimConfig:
     # Gazebo model: x = [0.0135, 0.0215, 0.0295, 0.0375], z = 0.009 each.
     distal_sensor_x: list[float] = field(default_factory=lambda: [0.0114, 0.0193, 0.0272, 0.0375])
     distal_sensor_z: list[float] = field(default_factory=lambda: [0.0129, 0.0129, 0.0129, 0.0073])
+    # Proximal joint origin pitch: 0 (hardware-facts / older visualiser URDF: open fingers lie
+    # flat, radially outwards) or 0.28 (newest visualiser URDF).
+    proximal_zero_pitch_rad: float = 0.0
+    # Spool angle of an open hand: 0 opens the fingers flat as the ReFlex does; a larger value
+    # keeps them raised (fewer wrist poses blocked by the table).
+    open_spool_rad: float = 0.0
     # World and wrist.
     table_size_m: list[float] = field(default_factory=lambda: [1.5, 1.5, 0.05])
     wrist_penetration_tol_m: float = 0.002  # deeper hand/object or hand/table overlap: unreachable

@@ -25,7 +25,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +76,9 @@ class ReflexGeometry:
     proximal_on_swivel: tuple[float, float, float] = (0.01, 0.0, 0.0186)
     thumb_origin: tuple[float, float, float] = (-0.03, 0.0, 0.0816)
     thumb_yaw: float = np.pi
+    # Pitch of the proximal joint origins: 0 in hardware-facts.md and the older visualiser URDF
+    # (used here); the newest visualiser URDF has 0.28 (open fingers tilted below the palm).
+    proximal_zero_pitch: float = 0.0
     distal_on_proximal: tuple[float, float, float] = (0.076, 0.0, 0.0025)
     # Sensor sites.
     proximal_sensor_x: tuple[float, ...] = (0.0189, 0.0268, 0.0347, 0.0426, 0.0506)
@@ -137,12 +140,16 @@ class ReflexGeometry:
 
 
 def geometry_with_distal_sites(
-    distal_x: list[float] | tuple[float, ...], distal_z: list[float] | tuple[float, ...]
+    distal_x: list[float] | tuple[float, ...],
+    distal_z: list[float] | tuple[float, ...],
+    proximal_zero_pitch: float = 0.0,
 ) -> ReflexGeometry:
-    """Default geometry with the distal sensor sites replaced (they differ between sources)."""
+    """Default geometry with the source-dependent choices replaced: distal sensor sites and
+    the proximal joints' zero pitch."""
     return ReflexGeometry(
         distal_sensor_x=tuple(float(v) for v in distal_x),
         distal_sensor_z=tuple(float(v) for v in distal_z),
+        proximal_zero_pitch=float(proximal_zero_pitch),
     )
 
 
@@ -180,9 +187,13 @@ def finger_link_transforms(
         # preshape_1 = +theta about -z, preshape_2 = -theta about -z.
         swivel_angle = -preshape if finger == 0 else preshape
         t_swivel = transform(rot_z(swivel_angle), geom.swivel_origins[finger])
-        t_prox_origin = t_swivel @ transform(np.eye(3), geom.proximal_on_swivel)
+        t_prox_origin = t_swivel @ transform(
+            rot_y(geom.proximal_zero_pitch), geom.proximal_on_swivel
+        )
     else:
-        t_prox_origin = transform(rot_z(geom.thumb_yaw), geom.thumb_origin)
+        t_prox_origin = transform(
+            rot_z(geom.thumb_yaw) @ rot_y(geom.proximal_zero_pitch), geom.thumb_origin
+        )
     # Joints turn about -y: rotation by -angle about +y.
     t_prox = t_prox_origin @ transform(rot_y(-proximal), (0.0, 0.0, 0.0))
     t_dist = t_prox @ transform(rot_y(-distal), geom.distal_on_proximal)
@@ -226,6 +237,23 @@ def sensor_positions(
         )
     out[N_FINGERS * SENSORS_PER_FINGER :] = palm_site_positions(geom)
     return out
+
+
+def coupled_joints(
+    spool: np.ndarray,
+    proximal_hold: np.ndarray,
+    proximal_blocked: np.ndarray,
+    coupling: float,
+    proximal_limit: float,
+    distal_limit: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Proximal and distal angles for spool (tendon) angles: a free finger splits the travel
+    proximal = spool / (1 + k), distal = k * proximal; a blocked proximal holds its angle and
+    the distal takes the rest (distal = spool - proximal, the driver's distal estimate)."""
+    free = spool / (1.0 + coupling)
+    prox = np.minimum(np.where(proximal_blocked, proximal_hold, free), proximal_limit)
+    dist = np.clip(spool - prox, 0.0, distal_limit)
+    return prox, dist
 
 
 # ---------------------------------------------------------------------------------------------
@@ -361,9 +389,11 @@ def build_urdf(geom: ReflexGeometry | None = None) -> str:
                     limits=(-g.preshape_limit, g.preshape_limit),
                 )
             )
-            prox_parent, prox_xyz, prox_rpy = swivel, g.proximal_on_swivel, (0.0, 0.0, 0.0)
+            prox_parent, prox_xyz = swivel, g.proximal_on_swivel
+            prox_rpy: tuple[float, ...] = (0.0, g.proximal_zero_pitch, 0.0)
         else:
-            prox_parent, prox_xyz, prox_rpy = "base", g.thumb_origin, (0.0, 0.0, g.thumb_yaw)
+            prox_parent, prox_xyz = "base", g.thumb_origin
+            prox_rpy = (0.0, g.proximal_zero_pitch, g.thumb_yaw)
         parts.append(_box_link(PROXIMAL_LINKS[f], g.proximal_mass, prox_lo, prox_hi))
         parts.append(
             _joint(
@@ -399,8 +429,16 @@ def build_urdf(geom: ReflexGeometry | None = None) -> str:
                 parent, xyz = DISTAL_LINKS[f], dist_sites[s - N_PROXIMAL_SENSORS]
                 rpy = (0.0, tilt, 0.0) if s == SENSORS_PER_FINGER - 1 else (0.0, 0.0, 0.0)
             parts.append(_site_link(sensor_link_name(sid)))
-            parts.append(_joint(f"{sensor_link_name(sid)}_joint", "fixed", parent,
-                                sensor_link_name(sid), xyz, rpy))
+            parts.append(
+                _joint(
+                    f"{sensor_link_name(sid)}_joint",
+                    "fixed",
+                    parent,
+                    sensor_link_name(sid),
+                    xyz,
+                    rpy,
+                )
+            )
     for i, xyz in enumerate(palm_site_positions(g)):
         sid = N_FINGERS * SENSORS_PER_FINGER + i
         parts.append(_site_link(sensor_link_name(sid)))
@@ -426,15 +464,3 @@ def urdf_file(geom: ReflexGeometry | None = None, cache_dir: Path | None = None)
             fh.write(text)
         os.replace(tmp, path)
     return path
-
-
-@dataclass(frozen=True)
-class HandJointIndex:
-    """PyBullet joint/link indices of a loaded hand (a joint's index is its child link's)."""
-
-    preshape: tuple[int, int]
-    proximal: tuple[int, int, int]
-    distal: tuple[int, int, int]
-    pad: int
-    sensor_links: tuple[int, ...]  # (38,)
-    finger_of_link: dict[int, int] = field(default_factory=dict)  # proximal/distal link -> finger

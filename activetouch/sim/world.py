@@ -1,0 +1,553 @@
+"""The twin's world: a PyBullet DIRECT client with a table, one object and the ReFlex hand,
+and `SimArm`, the floating wrist that carries the hand.
+
+Conventions (contracts.md, "sim"): the table top is world z = 0, the table centred at the
+origin. An object's frame has its origin at the object's bounding-box centre, axes parallel
+to the world's; the object stands on the table at (0, 0, half height) and is fixed. Wrist poses
+are of the hand (ReFlex base link) frame expressed in the object frame. With no object on the
+table the object frame is the world frame.
+
+The hand is a free (non-fixed) body that is never stepped: it is posed kinematically and Bullet's
+collision detection (`performCollisionDetection` + `getContactPoints`) reports where it meets the
+table and the object. A free base matters: Bullet skips pairs of static bodies, and the table
+and the object are static.
+
+Every world owns its client, so several worlds can live in one process; `close()` disconnects.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pybullet as pb
+from scipy.spatial.transform import Rotation
+
+from activetouch.config import SimConfig
+from activetouch.errors import ActiveTouchError, UnreachableError
+from activetouch.interfaces import (
+    N_FINGERS,
+    N_SENSORS,
+    SENSORS_PER_FINGER,
+    Arm,
+    JointState,
+    JointTrajectory,
+    Pose,
+)
+from activetouch.sim.reflex_urdf import (
+    DISTAL_JOINTS,
+    DISTAL_LINKS,
+    N_PROXIMAL_SENSORS,
+    PAD_LINK,
+    PRESHAPE_JOINTS,
+    PROXIMAL_JOINTS,
+    PROXIMAL_LINKS,
+    ReflexGeometry,
+    coupled_joints,
+    geometry_with_distal_sites,
+    sensor_positions,
+    urdf_file,
+)
+
+if TYPE_CHECKING:
+    from activetouch.sim.objects import ObjectSpec
+
+FAR_AWAY = (0.0, 0.0, 1.0e3)  # where the hand goes to drop Bullet's cached contact manifolds
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """3x3 rotation of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = (float(v) for v in q)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def geometry_from_config(cfg: SimConfig) -> ReflexGeometry:
+    return geometry_with_distal_sites(
+        cfg.distal_sensor_x, cfg.distal_sensor_z, cfg.proximal_zero_pitch_rad
+    )
+
+
+@dataclass(frozen=True)
+class HandLinks:
+    """PyBullet indices of the loaded hand (a joint's index is its child link's)."""
+
+    preshape: tuple[int, int]
+    proximal: tuple[int, int, int]
+    distal: tuple[int, int, int]
+    pad: int
+    collision_links: tuple[int, ...]  # links with collision geometry, base (-1) included
+    site_link: np.ndarray  # (38,) link carrying each sensor site
+
+
+@dataclass(frozen=True)
+class HandContacts:
+    """Where the hand meets other bodies at one instant (only touching/penetrating points)."""
+
+    link: np.ndarray  # (n,) hand link index (-1 = base)
+    position: np.ndarray  # (n, 3) world position of the point on the hand
+    depth: np.ndarray  # (n,) penetration, metres, >= 0
+    body: np.ndarray  # (n,) the other body
+
+    def __len__(self) -> int:
+        return len(self.link)
+
+
+@dataclass(frozen=True)
+class PlacedObject:
+    body: int
+    name: str
+    extents: np.ndarray  # (3,) bounding-box size, metres
+    origin: np.ndarray  # (3,) world position of the object frame origin
+
+
+class SimWorld:
+    """A PyBullet world with a table, at most one object, and the ReFlex hand."""
+
+    def __init__(
+        self,
+        cfg: SimConfig | None = None,
+        geometry: ReflexGeometry | None = None,
+        urdf_cache: Path | None = None,
+    ) -> None:
+        self.cfg = cfg or SimConfig()
+        self.geometry = geometry or geometry_from_config(self.cfg)
+        self.client: int | None = pb.connect(pb.DIRECT)
+        self._object: PlacedObject | None = None
+        c = self.client
+        try:
+            size = np.asarray(self.cfg.table_size_m, dtype=np.float64).reshape(3)
+            table_shape = pb.createCollisionShape(
+                pb.GEOM_BOX, halfExtents=(size / 2).tolist(), physicsClientId=c
+            )
+            self.table = pb.createMultiBody(
+                0.0, table_shape, basePosition=[0.0, 0.0, -size[2] / 2], physicsClientId=c
+            )
+            path = urdf_file(self.geometry, urdf_cache)
+            self.hand = pb.loadURDF(
+                str(path), FAR_AWAY, [0, 0, 0, 1], useFixedBase=False, physicsClientId=c
+            )
+        except Exception:
+            self.close()
+            raise
+        self.links = self._index_links()
+        dyn = pb.getDynamicsInfo(self.hand, -1, physicsClientId=c)
+        # PyBullet poses a base by its centre of mass; keep the URDF frame -> COM offset.
+        self._com_pos, self._com_orn = tuple(dyn[3]), tuple(dyn[4])
+        self._finger_joint_ids = list(self.links.proximal) + list(self.links.distal)
+        self._wrist = Pose(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0]))
+        self._preshape = float("nan")
+        self._proximal = np.zeros(N_FINGERS)
+        self._distal = np.zeros(N_FINGERS)
+        self.set_hand(0.0, self._proximal, self._distal)
+        self.open_fingers()
+        self.set_wrist(self._wrist)
+
+    # -- lifetime -------------------------------------------------------------------------
+
+    def close(self) -> None:
+        if self.client is not None:
+            with contextlib.suppress(pb.error):  # already gone
+                pb.disconnect(physicsClientId=self.client)
+            self.client = None
+
+    def __enter__(self) -> SimWorld:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        self.close()
+
+    @property
+    def cid(self) -> int:
+        if self.client is None:
+            raise ActiveTouchError("the simulated world is closed")
+        return self.client
+
+    def _index_links(self) -> HandLinks:
+        c = self.cid
+        by_joint: dict[str, int] = {}
+        by_link: dict[str, int] = {}
+        for j in range(pb.getNumJoints(self.hand, physicsClientId=c)):
+            info = pb.getJointInfo(self.hand, j, physicsClientId=c)
+            by_joint[info[1].decode()] = j
+            by_link[info[12].decode()] = j
+        from activetouch.sim.reflex_urdf import sensor_link_name
+
+        site_link = np.empty(N_SENSORS, dtype=np.int64)
+        for f in range(N_FINGERS):
+            for s in range(SENSORS_PER_FINGER):
+                links = PROXIMAL_LINKS if s < N_PROXIMAL_SENSORS else DISTAL_LINKS
+                site_link[f * SENSORS_PER_FINGER + s] = by_link[links[f]]
+        site_link[N_FINGERS * SENSORS_PER_FINGER :] = by_link[PAD_LINK]
+        assert all(sensor_link_name(i) in by_link for i in range(N_SENSORS))
+        collision = [-1] + [
+            j for j in by_link.values() if pb.getCollisionShapeData(self.hand, j, physicsClientId=c)
+        ]
+        return HandLinks(
+            preshape=(by_joint[PRESHAPE_JOINTS[0]], by_joint[PRESHAPE_JOINTS[1]]),
+            proximal=tuple(by_joint[n] for n in PROXIMAL_JOINTS),  # type: ignore[arg-type]
+            distal=tuple(by_joint[n] for n in DISTAL_JOINTS),  # type: ignore[arg-type]
+            pad=by_link[PAD_LINK],
+            collision_links=tuple(sorted(collision)),
+            site_link=site_link,
+        )
+
+    # -- the object -----------------------------------------------------------------------
+
+    @property
+    def object(self) -> PlacedObject | None:
+        return self._object
+
+    @property
+    def object_origin(self) -> np.ndarray:
+        """World position of the object frame's origin (the world origin with no object)."""
+        return np.zeros(3) if self._object is None else self._object.origin.copy()
+
+    def place(self, spec: ObjectSpec) -> int:
+        """Put a library object on the table (removing any previous one); its body id."""
+        from activetouch.sim.objects import spawn_object  # the object library's loader
+
+        self.clear()
+        body = spawn_object(self.cid, spec)
+        return self.place_body(body, np.asarray(spec.extents, dtype=np.float64), spec.name)
+
+    def place_body(self, body: int, extents: np.ndarray, name: str = "") -> int:
+        """Adopt `body` (already created in this world's client, fixed, standing on the table
+        centred at (0, 0, extents[2] / 2)) as the object; the world removes it on `clear()`."""
+        ext = np.asarray(extents, dtype=np.float64).reshape(3)
+        if np.any(ext <= 0) or not np.all(np.isfinite(ext)):
+            raise ValueError(f"object extents must be positive, got {ext}")
+        if self._object is not None and self._object.body != body:
+            self.clear()
+        self._object = PlacedObject(body, name, ext, np.array([0.0, 0.0, ext[2] / 2]))
+        self.set_wrist(self._wrist)  # the wrist pose is object-relative: re-pose the hand
+        return body
+
+    def place_primitive(self, kind: str, size: float | tuple[float, ...] | list[float]) -> int:
+        """A fixed primitive on the table: "sphere" (radius), "cylinder" (radius, height, axis
+        vertical) or "box" (x, y, z sizes)."""
+        dims = np.atleast_1d(np.asarray(size, dtype=np.float64))
+        c = self.cid
+        if kind == "sphere" and dims.size == 1:
+            shape = pb.createCollisionShape(
+                pb.GEOM_SPHERE, radius=float(dims[0]), physicsClientId=c
+            )
+            ext = np.full(3, 2 * dims[0])
+        elif kind == "cylinder" and dims.size == 2:
+            shape = pb.createCollisionShape(
+                pb.GEOM_CYLINDER, radius=float(dims[0]), height=float(dims[1]), physicsClientId=c
+            )
+            ext = np.array([2 * dims[0], 2 * dims[0], dims[1]])
+        elif kind == "box" and dims.size == 3:
+            shape = pb.createCollisionShape(
+                pb.GEOM_BOX, halfExtents=(dims / 2).tolist(), physicsClientId=c
+            )
+            ext = dims.copy()
+        else:
+            raise ValueError(f"bad primitive {kind!r} with size {size!r}")
+        if np.any(ext <= 0):
+            raise ValueError(f"primitive sizes must be positive, got {size!r}")
+        self.clear()
+        body = pb.createMultiBody(
+            0.0, shape, basePosition=[0.0, 0.0, ext[2] / 2], physicsClientId=c
+        )
+        return self.place_body(body, ext, kind)
+
+    def clear(self) -> None:
+        """Remove the object, leaving the empty table."""
+        if self._object is not None:
+            pb.removeBody(self._object.body, physicsClientId=self.cid)
+            self._object = None
+            self.set_wrist(self._wrist)
+
+    # -- the hand -------------------------------------------------------------------------
+
+    @property
+    def wrist_pose(self) -> Pose:
+        """Hand frame in the object frame."""
+        return self._wrist
+
+    def wrist_world(self) -> tuple[np.ndarray, np.ndarray]:
+        """Hand frame in the world: position (3,), quaternion (4,) x y z w."""
+        return self._wrist.xyz + self.object_origin, self._wrist.quat.copy()
+
+    def set_wrist(self, pose: Pose) -> None:
+        """Teleport the hand frame to `pose` (object frame). No collision check: see SimArm."""
+        self._wrist = pose
+        pos, quat = self.wrist_world()
+        com_pos, com_orn = pb.multiplyTransforms(
+            pos.tolist(), quat.tolist(), self._com_pos, self._com_orn
+        )
+        pb.resetBasePositionAndOrientation(self.hand, com_pos, com_orn, physicsClientId=self.cid)
+
+    @property
+    def preshape_angle(self) -> float:
+        return self._preshape
+
+    @property
+    def proximal(self) -> np.ndarray:
+        return self._proximal.copy()
+
+    @property
+    def distal(self) -> np.ndarray:
+        return self._distal.copy()
+
+    def set_hand(self, preshape: float, proximal: np.ndarray, distal: np.ndarray) -> None:
+        """Pose the hand's joints: preshape (fingers 0, 1 swivel by +-preshape), proximal and
+        distal angles per finger."""
+        prox = np.asarray(proximal, dtype=np.float64).reshape(N_FINGERS)
+        dist = np.asarray(distal, dtype=np.float64).reshape(N_FINGERS)
+        c = self.cid
+        if preshape != self._preshape:  # NaN before the first call
+            pb.resetJointStatesMultiDof(
+                self.hand, list(self.links.preshape), [[preshape], [-preshape]], physicsClientId=c
+            )
+        pb.resetJointStatesMultiDof(
+            self.hand,
+            self._finger_joint_ids,
+            [[float(v)] for v in np.concatenate([prox, dist])],
+            physicsClientId=c,
+        )
+        self._preshape = float(preshape)
+        self._proximal = prox.copy()
+        self._distal = dist.copy()
+
+    def open_fingers(self) -> None:
+        """Open every finger to the configured open spool angle (0: flat), preshape kept."""
+        spool = np.full(N_FINGERS, self.cfg.open_spool_rad)
+        prox, dist = coupled_joints(
+            spool,
+            np.zeros(N_FINGERS),
+            np.zeros(N_FINGERS, dtype=bool),
+            self.cfg.flexure_coupling,
+            self.geometry.proximal_limit,
+            self.geometry.distal_limit,
+        )
+        self.set_hand(self._preshape, prox, dist)
+
+    def sensor_sites_hand(self) -> np.ndarray:
+        """(38, 3) sensor-site XYZ in the hand frame at the current joint angles."""
+        return sensor_positions(self.geometry, self._preshape, self._proximal, self._distal)
+
+    def hand_to_world(self, xyz_hand: np.ndarray) -> np.ndarray:
+        pos, quat = self.wrist_world()
+        return np.asarray(xyz_hand) @ quat_to_matrix(quat).T + pos
+
+    def world_to_hand(self, xyz_world: np.ndarray) -> np.ndarray:
+        pos, quat = self.wrist_world()
+        return (np.asarray(xyz_world) - pos) @ quat_to_matrix(quat)
+
+    # -- collision queries ----------------------------------------------------------------
+
+    def flush_contacts(self) -> None:
+        """Drop Bullet's cached contact manifolds of the hand, so the next query depends only
+        on the current configuration (not on the path that led to it)."""
+        c = self.cid
+        pb.resetBasePositionAndOrientation(self.hand, FAR_AWAY, [0, 0, 0, 1], physicsClientId=c)
+        pb.performCollisionDetection(physicsClientId=c)
+        self.set_wrist(self._wrist)
+
+    def hand_contacts(self) -> HandContacts:
+        """Run collision detection; the hand's touching or penetrating points."""
+        c = self.cid
+        pb.performCollisionDetection(physicsClientId=c)
+        links, pos, depth, bodies = [], [], [], []
+        for cp in pb.getContactPoints(bodyA=self.hand, physicsClientId=c):
+            if cp[8] > 0.0:
+                continue  # a near miss kept in the manifold, not a contact
+            if cp[1] == self.hand:
+                links.append(cp[3])
+                pos.append(cp[5])
+                bodies.append(cp[2])
+            else:
+                links.append(cp[4])
+                pos.append(cp[6])
+                bodies.append(cp[1])
+            depth.append(-cp[8])
+        return HandContacts(
+            link=np.asarray(links, dtype=np.int64),
+            position=np.asarray(pos, dtype=np.float64).reshape(-1, 3),
+            depth=np.asarray(depth, dtype=np.float64),
+            body=np.asarray(bodies, dtype=np.int64),
+        )
+
+    def hand_min_z(self) -> float:
+        """Lowest world z of the hand's collision geometry (its boxes' AABBs are exact)."""
+        c = self.cid
+        return min(
+            pb.getAABB(self.hand, j, physicsClientId=c)[0][2] for j in self.links.collision_links
+        )
+
+    def collision_reason(self) -> str | None:
+        """Why the hand cannot be where it is (None if it may): below the table top, or
+        overlapping the table or the object deeper than the configured tolerance."""
+        tol = self.cfg.wrist_penetration_tol_m
+        low = self.hand_min_z()
+        if low < -tol:
+            return f"the hand reaches {-low * 1000:.1f} mm below the table top"
+        self.flush_contacts()
+        contacts = self.hand_contacts()
+        if len(contacts) and contacts.depth.max() > tol:
+            i = int(np.argmax(contacts.depth))
+            what = "table" if contacts.body[i] == self.table else "object"
+            return f"the hand penetrates the {what} by {contacts.depth[i] * 1000:.1f} mm"
+        return None
+
+
+def euler_to_quat(rpy: np.ndarray) -> np.ndarray:
+    """Roll, pitch, yaw (fixed-axis x, y, z, as PyBullet's) to a quaternion x y z w."""
+    return Rotation.from_euler("xyz", np.asarray(rpy, dtype=np.float64)).as_quat()
+
+
+def quat_to_euler(q: np.ndarray) -> np.ndarray:
+    return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_euler("xyz")
+
+
+WRIST_JOINTS = ("wrist_x", "wrist_y", "wrist_z", "wrist_roll", "wrist_pitch", "wrist_yaw")
+
+
+def wrist_joints_to_pose(q: np.ndarray) -> Pose:
+    q = np.asarray(q, dtype=np.float64).reshape(6)
+    return Pose(q[:3], euler_to_quat(q[3:]))
+
+
+def pose_to_wrist_joints(pose: Pose) -> np.ndarray:
+    return np.concatenate([pose.xyz, quat_to_euler(pose.quat)])
+
+
+def _format_pose(pose: Pose) -> str:
+    x, y, z = pose.xyz
+    return f"({x:.3f}, {y:.3f}, {z:.3f})"
+
+
+class SimArm(Arm):
+    """A floating wrist: six virtual joints x y z roll pitch yaw of the hand frame in the
+    object frame. Moves teleport (as in the paper's simulation). The twin makes its moves with
+    the fingers open (preshape kept): a teleport carries nothing, and the collision check of a
+    target pose is of the open hand."""
+
+    joint_names = WRIST_JOINTS
+
+    def __init__(self, world: SimWorld) -> None:
+        self.world = world
+        self._stopped = False
+
+    def connect(self) -> None:
+        self._stopped = False
+
+    def disconnect(self) -> None:
+        pass  # the world owns the client
+
+    def joint_state(self) -> JointState:
+        return JointState(
+            names=WRIST_JOINTS,
+            position=pose_to_wrist_joints(self.world.wrist_pose),
+            velocity=np.zeros(6),
+            stamp=time.monotonic(),
+        )
+
+    def _try_pose(self, pose: Pose) -> str | None:
+        """Open the fingers, teleport, check; on failure restore everything. The reason."""
+        w = self.world
+        before = (w.wrist_pose, w.preshape_angle, w.proximal, w.distal)
+        w.open_fingers()
+        w.set_wrist(pose)
+        reason = w.collision_reason()
+        if reason is not None:
+            w.set_wrist(before[0])
+            w.set_hand(before[1], before[2], before[3])
+        return reason
+
+    def move_wrist(self, pose: Pose) -> None:
+        """Teleport the hand frame to `pose` (object frame). UnreachableError if the open hand
+        there would be under the table or inside the table or the object."""
+        reason = self._try_pose(pose)
+        if reason is not None:
+            raise UnreachableError(f"wrist pose {_format_pose(pose)}: {reason}")
+
+    def check_pose(self, pose: Pose) -> str | None:
+        """Why `pose` is unreachable, or None; the hand stays where it is either way."""
+        w = self.world
+        before = (w.wrist_pose, w.preshape_angle, w.proximal, w.distal)
+        reason = self._try_pose(pose)
+        w.set_wrist(before[0])
+        w.set_hand(before[1], before[2], before[3])
+        return reason
+
+    def execute(self, trajectory: JointTrajectory) -> None:
+        """Follow a wrist trajectory, checking collisions every `execute_step_m` /
+        `execute_step_rad` between its points; on a collision the hand stays at the last
+        collision-free sample and UnreachableError names the time."""
+        q = _trajectory_in_wrist_order(trajectory)
+        cfg = self.world.cfg
+        self._stopped = False
+        times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
+        current = pose_to_wrist_joints(self.world.wrist_pose)
+        for i in range(len(q)):
+            start = current if i == 0 else q[i - 1]
+            delta = q[i] - start
+            delta[3:] = (delta[3:] + np.pi) % (2 * np.pi) - np.pi  # shortest way round
+            n = max(
+                1,
+                int(np.ceil(np.linalg.norm(delta[:3]) / cfg.execute_step_m)),
+                int(np.ceil(np.abs(delta[3:]).max() / cfg.execute_step_rad)),
+            )
+            for k in range(1, n + 1):
+                if self._stopped:
+                    return
+                pose = wrist_joints_to_pose(start + delta * (k / n))
+                reason = self._try_pose(pose)
+                if reason is not None:
+                    raise UnreachableError(
+                        f"wrist trajectory blocked near t = {times[i]:.2f} s at "
+                        f"{_format_pose(pose)}: {reason}"
+                    )
+
+    def stop(self) -> None:
+        self._stopped = True
+
+
+def _trajectory_in_wrist_order(trajectory: JointTrajectory) -> np.ndarray:
+    names = tuple(trajectory.names)
+    if sorted(names) != sorted(WRIST_JOINTS) or len(names) != len(WRIST_JOINTS):
+        raise ActiveTouchError(
+            f"a wrist trajectory needs the joints {', '.join(WRIST_JOINTS)}; got {names}"
+        )
+    pos = np.asarray(trajectory.positions, dtype=np.float64)
+    times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
+    if pos.ndim != 2 or pos.shape != (len(times), len(names)) or len(times) == 0:
+        raise ActiveTouchError(
+            f"trajectory positions of shape {pos.shape} do not match {len(times)} times "
+            f"x {len(names)} joints"
+        )
+    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(times)):
+        raise ActiveTouchError("trajectory holds NaN or infinite values")
+    if np.any(np.diff(times) < 0):
+        raise ActiveTouchError("trajectory times go backwards")
+    order = [names.index(n) for n in WRIST_JOINTS]
+    return pos[:, order]
+
+
+__all__: list[Any] = [
+    "WRIST_JOINTS",
+    "HandContacts",
+    "HandLinks",
+    "PlacedObject",
+    "SimArm",
+    "SimWorld",
+    "geometry_from_config",
+    "pose_to_wrist_joints",
+    "wrist_joints_to_pose",
+]
