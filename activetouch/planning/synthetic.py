@@ -44,6 +44,17 @@ class SyntheticProblem:
     class_bin_p: np.ndarray  # (K, n_bins) bin distribution of each class's triangles
     grasp_ptr: np.ndarray  # (P + 1,) CSR over poses into grasp_bin
     grasp_bin: np.ndarray  # bins of each pose's training grasp triangles
+    cell_of_bin: np.ndarray  # (n_bins,) conditioning cell of a triangle in each bin
+
+    def observe(self, pose: int) -> tuple[np.ndarray, np.ndarray]:
+        """The training grasp at `pose` as a real observation: (histogram counts it adds,
+        cells it leaves behind)."""
+        m = self.model
+        bins = self.grasp_bin[self.grasp_ptr[pose] : self.grasp_ptr[pose + 1]]
+        counts = np.bincount(bins, minlength=m.n_bins).astype(np.float64)
+        if m.granularity == "grasp":
+            return counts, m.out_cell[pose : pose + 1].copy()
+        return counts, np.unique(self.cell_of_bin[bins])
 
 
 def _look_at_quaternions(direction: np.ndarray, roll: np.ndarray) -> np.ndarray:
@@ -301,6 +312,13 @@ def synthetic_problem(
         marg_ptr=marg_ptr,
         marg_out=marg_out,
         marg_cum=marg_cum,
+        # Cell c stands for the made-up triangle cell triple (c, 0, 0).
+        cell_key=np.stack(
+            [np.arange(n_cells), np.zeros(n_cells, int), np.zeros(n_cells, int)], axis=1
+        ).astype(np.int64),
+        translation_cell=TRANSLATION_CELL_M,
+        quaternion_cell=QUATERNION_CELL,
+        max_translation=float(t_len.max()),
     )
     return SyntheticProblem(
         model=model,
@@ -309,6 +327,7 @@ def synthetic_problem(
         class_bin_p=q,
         grasp_ptr=grasp_ptr,
         grasp_bin=grasp_bin,
+        cell_of_bin=cell_of_bin.astype(np.int64),
     )
 
 
