@@ -233,6 +233,11 @@ class ObservationModel:
             a = getattr(self, name)
             if len(a) and (a.min() < 0 or a.max() >= bound):
                 fail(f"{name} holds ids outside [0, {bound})")
+        for ptr, cum in (("tally_ptr", "tally_cum"), ("marg_ptr", "marg_cum")):
+            p, c = getattr(self, ptr), getattr(self, cum)
+            ends = p[1:][np.diff(p) > 0] - 1
+            if np.any(np.diff(p) == 0) or np.any((c < 0) | (c > 1)) or np.any(c[ends] != 1.0):
+                fail(f"{cum} is not a cumulative distribution per row")
         for key, bound in (("tally_key", K * A * C), ("marg_key", K * A)):
             k = getattr(self, key)
             if len(k) and (np.any(np.diff(k) <= 0) or k[0] < 0 or k[-1] >= bound):

@@ -12,13 +12,15 @@ valid dataset (plus at most one stray file that the next append removes). Nothin
 the arrays are plain ``.npy`` members of a zip, written with fixed timestamps so equal
 contents give equal bytes (and an equal `Dataset.checksum`).
 
-One writer at a time; readers may run alongside it.
+One writer at a time; a reader sees the dataset as of its `open` (reopen after another
+process appends: the superseded file is deleted).
 """
 
 from __future__ import annotations
 
 import contextlib
 import datetime as _dt
+import fcntl
 import hashlib
 import io
 import json
@@ -247,6 +249,17 @@ def _merge(old: dict[str, np.ndarray] | None, new: dict[str, np.ndarray]) -> dic
     return _select(both, keep.astype(np.int64))
 
 
+@contextlib.contextmanager
+def _manifest_lock(path: Path):
+    """Exclusive advisory lock on the dataset directory, across processes."""
+    with open(path / ".lock", "a+b") as f:
+        pass
+        try:
+            yield
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+
+
 class Dataset:
     """A training dataset directory. Use `Dataset.create_or_open` or `Dataset.open`."""
 
@@ -453,6 +466,13 @@ class Dataset:
         attrs = _json_roundtrip(attrs or {}, "object attrs")
         if not isinstance(attrs, dict):
             raise DataError("object attrs must be a dict")
+        # Collections of different objects run in parallel processes: serialise the
+        # read-modify-write of the manifest, and start from what is on disk now.
+        with _manifest_lock(self.path):
+            pass
+            self._append_locked(name, records, attrs)
+
+    def _append_locked(self, name: str, records: list[GraspRecord], attrs: dict) -> None:
         objects = self._manifest["objects"]
         entry = objects.get(name)
         old = self._load_arrays(name) if entry is not None else None
