@@ -1,0 +1,158 @@
+"""Policies behind one interface: tree, greedy (T = 1) and random, and the replanning loop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import chisquare
+
+from activetouch.config import PlannerConfig
+from activetouch.errors import ConfigError
+from activetouch.planning.policies import (
+    GreedyPolicy,
+    PlanningState,
+    RandomPolicy,
+    TreePolicy,
+    make_policy,
+    run_policy,
+)
+from activetouch.planning.synthetic import synthetic_problem
+from tests.planning.test_mcts import (
+    C_ROOT,
+    ROOT_COUNTS,
+    _rule,
+    lookahead_problem,
+)
+
+
+def lookahead_observe(model):
+    """Real observations of the hand-built problem (deterministic, conditioned on the last cell)."""
+    last = {"cell": C_ROOT}
+
+    def observe(pose: int) -> tuple[np.ndarray, np.ndarray]:
+        o = _rule(pose, last["cell"])  # action id = target pose id
+        counts = np.bincount(
+            model.out_bin[model.out_ptr[o] : model.out_ptr[o + 1]], minlength=model.n_bins
+        ).astype(float)
+        last["cell"] = int(model.out_cell[o])
+        return counts, np.array([last["cell"]])
+
+    return observe
+
+
+def start_state() -> PlanningState:
+    return PlanningState.start(0, ROOT_COUNTS, np.array([C_ROOT]))
+
+
+def test_tree_looks_ahead_where_greedy_does_not() -> None:
+    model, kernel = lookahead_problem()
+    cfg = PlannerConfig(policy="tree", horizon=2, simulations=20000)
+    tree = make_policy("tree", cfg, model, kernel)
+    greedy = make_policy("greedy", cfg, model, kernel)
+    assert isinstance(tree, TreePolicy) and isinstance(greedy, GreedyPolicy)
+    assert greedy.horizon == 1
+    t = tree.plan(start_state(), np.random.default_rng(0))
+    g = greedy.plan(start_state(), np.random.default_rng(0))
+    assert t.poses.tolist() == [2, 3]  # the key pose, then the pose it unlocks
+    assert g.poses.tolist() == [1]  # the immediate gain
+    # Executed, the tree's plan ends more confident than two greedy steps.
+    ep_t = run_policy(
+        tree, start_state(), lookahead_observe(model), max_moves=2, rng=np.random.default_rng(1)
+    )
+    ep_g = run_policy(
+        greedy, start_state(), lookahead_observe(model), max_moves=2, rng=np.random.default_rng(1)
+    )
+    assert ep_t.poses.tolist() == [2, 3] and len(ep_t.plans) == 1
+    assert len(ep_g.plans) == 2 and ep_g.poses[0] == 1
+    assert kernel.proba(ep_t.state.counts).max() > kernel.proba(ep_g.state.counts).max() + 0.1
+
+
+def test_replanning_mode_executes_one_pose_per_tree() -> None:
+    model, kernel = lookahead_problem()
+    cfg = PlannerConfig(horizon=2, simulations=20000, replan_every_grasp=True)
+    tree = make_policy("tree", cfg, model, kernel)
+    plan = tree.plan(start_state(), np.random.default_rng(0))
+    assert plan.poses.tolist() == [2]
+    assert plan.search is not None and plan.search.poses.tolist() == [2, 3]
+    ep = run_policy(
+        tree, start_state(), lookahead_observe(model), max_moves=3, rng=np.random.default_rng(0)
+    )
+    assert len(ep.plans) == 3 and ep.poses[:2].tolist() == [2, 3]
+    assert ep.state.visited.tolist() == [0, *ep.poses.tolist()]
+
+
+def test_random_policy_is_uniform_over_unvisited_poses() -> None:
+    pr = synthetic_problem(12, 3, rng=np.random.default_rng(0))
+    policy = make_policy("random", PlannerConfig(), pr.model, pr.kernel)
+    assert isinstance(policy, RandomPolicy)
+    counts, cells = pr.observe(4)
+    state = PlanningState(4, np.array([0, 3, 4, 7]), counts, cells)
+    rng = np.random.default_rng(42)
+    draws = np.array([policy.plan(state, rng).poses[0] for _ in range(4000)])
+    allowed = [p for p in range(12) if p not in (0, 3, 4, 7)]
+    assert set(draws.tolist()) == set(allowed)
+    freq = np.array([(draws == p).sum() for p in allowed])
+    assert chisquare(freq).pvalue > 1e-3
+    plan = policy.plan(state, np.random.default_rng(1))
+    e = pr.model.edge_ptr[4] + int(
+        np.flatnonzero(
+            pr.model.edge_target[pr.model.edge_ptr[4] : pr.model.edge_ptr[5]] == plan.poses[0]
+        )[0]
+    )
+    assert plan.actions[0] == pr.model.edge_action[e]
+
+
+@pytest.mark.parametrize("name", ["tree", "greedy", "random"])
+def test_policies_are_deterministic_given_a_seed(name: str) -> None:
+    pr = synthetic_problem(60, 4, rng=np.random.default_rng(3))
+    cfg = PlannerConfig(horizon=4, simulations=300)
+    policy = make_policy(name, cfg, pr.model, pr.kernel)
+    counts, cells = pr.observe(0)
+    state = PlanningState.start(0, counts, cells)
+    runs = [
+        run_policy(policy, state, pr.observe, max_moves=12, rng=np.random.default_rng(9))
+        for _ in range(2)
+    ]
+    assert runs[0].poses.tolist() == runs[1].poses.tolist()
+    assert len(runs[0].poses) == 12
+    # No pose is executed twice, and the start pose is never revisited.
+    assert len(set(runs[0].state.visited.tolist())) == 13
+
+
+@pytest.mark.parametrize("name", ["tree", "greedy", "random"])
+def test_policies_say_when_poses_are_exhausted(name: str) -> None:
+    pr = synthetic_problem(6, 2, rng=np.random.default_rng(1))
+    policy = make_policy(name, PlannerConfig(horizon=3, simulations=50), pr.model, pr.kernel)
+    counts, cells = pr.observe(0)
+    state = PlanningState(0, np.arange(6), counts, cells)
+    plan = policy.plan(state, np.random.default_rng(0))
+    assert plan.exhausted and len(plan) == 0
+    # Executing until nothing is left: 5 more poses, then an exhausted plan ends the loop.
+    ep = run_policy(
+        policy,
+        PlanningState.start(0, counts, cells),
+        pr.observe,
+        max_moves=50,
+        rng=np.random.default_rng(0),
+    )
+    assert ep.exhausted and sorted(ep.poses.tolist()) == [1, 2, 3, 4, 5]
+    assert ep.plans[-1].exhausted
+
+
+def test_stop_condition_and_bad_names() -> None:
+    pr = synthetic_problem(30, 3, rng=np.random.default_rng(1))
+    policy = make_policy("tree", PlannerConfig(horizon=3, simulations=100), pr.model, pr.kernel)
+    counts, cells = pr.observe(0)
+    ep = run_policy(
+        policy,
+        PlanningState.start(0, counts, cells),
+        pr.observe,
+        max_moves=20,
+        rng=np.random.default_rng(0),
+        stop=lambda s: len(s.visited) >= 4,
+    )
+    assert len(ep.poses) == 3 and not ep.exhausted
+    with pytest.raises(ConfigError, match="unknown planner policy"):
+        make_policy("mcts", PlannerConfig(), pr.model, pr.kernel)
+    with pytest.raises(ConfigError, match="horizon"):
+        make_policy("tree", PlannerConfig(horizon=0), pr.model, pr.kernel)
