@@ -253,7 +253,7 @@ def _merge(old: dict[str, np.ndarray] | None, new: dict[str, np.ndarray]) -> dic
 def _manifest_lock(path: Path):
     """Exclusive advisory lock on the dataset directory, across processes."""
     with open(path / ".lock", "a+b") as f:
-        pass
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
         try:
             yield
         finally:
@@ -469,7 +469,7 @@ class Dataset:
         # Collections of different objects run in parallel processes: serialise the
         # read-modify-write of the manifest, and start from what is on disk now.
         with _manifest_lock(self.path):
-            pass
+            self._manifest = self._read_manifest(self.path / MANIFEST)
             self._append_locked(name, records, attrs)
 
     def _append_locked(self, name: str, records: list[GraspRecord], attrs: dict) -> None:

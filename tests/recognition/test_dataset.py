@@ -237,3 +237,26 @@ def test_meta_conflict_on_resume(tmp_path: Path) -> None:
     assert ds.meta == {"step": 25, "arm": "sim"}
     with pytest.raises(DataError, match=r"different settings.*step"):
         Dataset.create_or_open(tmp_path, meta={"step": 45})
+
+
+def _append_many(path: str, name: str, n: int) -> None:
+    ds = Dataset.open(path)
+    rng = np.random.default_rng(len(name))
+    for i in range(n):
+        ds.append(name, [make_record(i, rng)])
+
+
+def test_parallel_processes_appending_different_objects_lose_nothing(tmp_path: Path) -> None:
+    import multiprocessing as mp
+
+    Dataset.create_or_open(tmp_path)
+    ctx = mp.get_context("spawn")
+    procs = [ctx.Process(target=_append_many, args=(str(tmp_path), n, 8)) for n in ("a", "b")]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+        assert p.exitcode == 0
+    ds = Dataset.open(tmp_path)
+    assert sorted(ds.object_names()) == ["a", "b"]
+    assert ds.done_pose_ids("a") == ds.done_pose_ids("b") == set(range(8))
