@@ -24,6 +24,10 @@ class PlanningError(ActiveTouchError):
 class MessageError(ActiveTouchError):
     """A message received over Zenoh is malformed: not JSON, wrong schema version, bad field."""
 
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field  # dotted path of the offending field, when known
+
 
 class NodeUnavailableError(ActiveTouchError):
     """A remote node (hand, arm, daemon) did not answer in time or its liveliness token dropped."""

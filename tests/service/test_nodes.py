@@ -1,0 +1,403 @@
+"""Hand / Arm served over Zenoh on 127.0.0.1 (scouting off), used through RemoteHand / RemoteArm."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from activetouch.errors import (
+    DataError,
+    MessageError,
+    NodeUnavailableError,
+    RemoteError,
+    UnreachableError,
+)
+from activetouch.interfaces import (
+    N_SENSORS,
+    Arm,
+    Grasp,
+    Hand,
+    HandState,
+    JointState,
+    JointTrajectory,
+    Pose,
+)
+from activetouch.service.keys import Keys
+from activetouch.service.messages import (
+    Empty,
+    HandStateMsg,
+    JointStateMsg,
+    PreshapeRequest,
+    Reply,
+    decode,
+    encode,
+)
+from activetouch.service.nodes import ArmNode, HandNode, Latest, RemoteArm, RemoteHand
+from activetouch.service.zenoh_session import (
+    ZenohSession,
+    ZenohSettings,
+    free_tcp_port,
+)
+
+ROBOT = "testbot"
+
+
+class FakeHand(Hand):
+    """Deterministic hand double: records calls; guarded_close touches sensors 0, 9, 18, 27."""
+
+    def __init__(self, close_delay: float = 0.0) -> None:
+        self.calls: list[tuple] = []
+        self.angle = 0.0
+        self.closed = False
+        self.close_delay = close_delay
+        self.fail_with: Exception | None = None
+
+    def connect(self) -> None:
+        self.calls.append(("connect",))
+
+    def disconnect(self) -> None:
+        self.calls.append(("disconnect",))
+
+    def open(self) -> None:
+        self.calls.append(("open",))
+        self.closed = False
+
+    def preshape(self, angle: float) -> None:
+        self.calls.append(("preshape", angle))
+        if not 0.0 <= angle <= 1.6:
+            raise ValueError(f"preshape {angle} rad outside 0..1.6")
+        self.angle = angle
+
+    def guarded_close(self) -> Grasp:
+        self.calls.append(("guarded_close",))
+        if self.fail_with is not None:
+            raise self.fail_with
+        if self.close_delay:
+            time.sleep(self.close_delay)
+        self.closed = True
+        ids = np.array([0, 9, 18, 27])
+        return Grasp(
+            sensor_ids=ids,
+            xyz=np.column_stack([ids * 0.001, ids * 0.002, ids * 0.003]),
+            pressures=ids * 1.5 + 1.0,
+            finger_angles=np.array([1.0, 1.1, 1.2]),
+            preshape=self.angle,
+        )
+
+    def state(self) -> HandState:
+        contact = np.zeros(N_SENSORS, dtype=bool)
+        if self.closed:
+            contact[[0, 9, 18, 27]] = True
+        return HandState(
+            pressures=np.arange(N_SENSORS, dtype=float) * contact,
+            contact=contact,
+            finger_angles=np.array([1.0, 1.1, 1.2]) if self.closed else np.zeros(3),
+            preshape=self.angle,
+            stamp=time.monotonic(),
+        )
+
+
+class FakeArm(Arm):
+    """Arm double: a 'wrist' pose; poses with x > 1 m are unreachable; execute can be stopped."""
+
+    NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+    def __init__(self) -> None:
+        self.calls: list[tuple] = []
+        self.q = np.zeros(6)
+        self.stop_event = threading.Event()
+        self.executing = threading.Event()
+
+    def connect(self) -> None:
+        self.calls.append(("connect",))
+
+    def disconnect(self) -> None:
+        self.calls.append(("disconnect",))
+
+    def joint_state(self) -> JointState:
+        return JointState(self.NAMES, self.q.copy(), np.zeros(6), time.monotonic())
+
+    def execute(self, trajectory: JointTrajectory) -> None:
+        self.calls.append(("execute", trajectory))
+        self.stop_event.clear()
+        self.executing.set()
+        try:
+            t0 = time.monotonic()
+            # Follow the timing (scaled down 10x) so that stop() can interrupt a real motion.
+            while time.monotonic() - t0 < float(trajectory.times[-1]) / 10:
+                if self.stop_event.wait(0.005):
+                    raise DataError("trajectory interrupted by stop")
+            self.q = np.asarray(trajectory.positions[-1], dtype=float).copy()
+        finally:
+            self.executing.clear()
+
+    def move_wrist(self, pose: Pose) -> None:
+        self.calls.append(("move_wrist", pose))
+        if pose.xyz[0] > 1.0:
+            raise UnreachableError(f"wrist pose at x={pose.xyz[0]:.2f} m is out of reach")
+        self.q[:3] = pose.xyz
+
+    def stop(self) -> None:
+        self.calls.append(("stop",))
+        self.stop_event.set()
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_tcp_port()}"
+
+
+@pytest.fixture
+def node_session(endpoint: str) -> Iterator[ZenohSession]:
+    with ZenohSession(ZenohSettings(listen=(endpoint,))) as zs:
+        yield zs
+
+
+@pytest.fixture
+def client_session(endpoint: str, node_session: ZenohSession) -> Iterator[ZenohSession]:
+    with ZenohSession(ZenohSettings.client(endpoint)) as zs:
+        yield zs
+
+
+@pytest.fixture
+def hand() -> FakeHand:
+    return FakeHand()
+
+
+@pytest.fixture
+def arm() -> FakeArm:
+    return FakeArm()
+
+
+@pytest.fixture
+def hand_node(hand: FakeHand, node_session: ZenohSession) -> HandNode:
+    return node_session.closing(HandNode(hand, node_session.session, ROBOT, state_hz=50.0))
+
+
+@pytest.fixture
+def arm_node(arm: FakeArm, node_session: ZenohSession) -> ArmNode:
+    return node_session.closing(ArmNode(arm, node_session.session, ROBOT, state_hz=50.0))
+
+
+@pytest.fixture
+def remote_hand(hand_node: HandNode, client_session: ZenohSession) -> RemoteHand:
+    rh = client_session.closing(RemoteHand(client_session.session, ROBOT, timeout=3.0))
+    rh.connect()
+    return rh
+
+
+@pytest.fixture
+def remote_arm(arm_node: ArmNode, client_session: ZenohSession) -> RemoteArm:
+    ra = client_session.closing(RemoteArm(client_session.session, ROBOT, timeout=3.0))
+    ra.connect()
+    return ra
+
+
+def test_remote_hand_round_trip(remote_hand: RemoteHand, hand: FakeHand) -> None:
+    remote_hand.preshape(0.8)
+    remote_hand.open()
+    grasp = remote_hand.guarded_close()
+    expected = FakeHand()
+    expected.angle = 0.8
+    want = expected.guarded_close()
+    np.testing.assert_array_equal(grasp.sensor_ids, want.sensor_ids)
+    np.testing.assert_allclose(grasp.xyz, want.xyz)
+    np.testing.assert_allclose(grasp.pressures, want.pressures)
+    np.testing.assert_allclose(grasp.finger_angles, want.finger_angles)
+    assert grasp.preshape == 0.8
+    state = remote_hand.state()
+    assert state.contact.dtype == bool and state.contact.sum() == 4
+    assert state.preshape == 0.8
+    assert [c[0] for c in hand.calls] == ["preshape", "open", "guarded_close"]
+    assert hand.calls[0] == ("preshape", 0.8)
+
+
+def test_remote_arm_round_trip(remote_arm: RemoteArm, arm: FakeArm) -> None:
+    pose = Pose(np.array([0.1, -0.2, 0.3]), np.array([0.0, 0.0, 0.0, 2.0]))
+    remote_arm.move_wrist(pose)
+    (name, got), = arm.calls
+    assert name == "move_wrist"
+    np.testing.assert_allclose(got.as_array(), pose.as_array())
+    traj = JointTrajectory(
+        names=FakeArm.NAMES,
+        times=np.array([0.0, 0.1, 0.2]),
+        positions=np.tile(np.arange(6.0), (3, 1)) * np.array([[0.0], [0.5], [1.0]]),
+        meta={"planner": "test", "n": np.int64(3)},
+    )
+    remote_arm.execute(traj)
+    sent = arm.calls[-1][1]
+    np.testing.assert_allclose(sent.positions, traj.positions)
+    assert sent.meta == {"planner": "test", "n": 3}
+    js = remote_arm.joint_state()
+    assert js.names == FakeArm.NAMES
+    np.testing.assert_allclose(js.position, np.arange(6.0))
+
+
+def test_unreachable_crosses_the_wire_as_itself(remote_arm: RemoteArm) -> None:
+    with pytest.raises(UnreachableError, match=r"x=2\.00 m is out of reach"):
+        remote_arm.move_wrist(Pose(np.array([2.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0])))
+    # The node goes on serving after the error.
+    remote_arm.move_wrist(Pose(np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0])))
+
+
+def test_device_errors_keep_their_type(remote_hand: RemoteHand, hand: FakeHand) -> None:
+    with pytest.raises(ValueError, match="outside 0..1.6"):
+        remote_hand.preshape(2.5)
+    hand.fail_with = DataError("tactile board sent a truncated packet")
+    with pytest.raises(DataError, match="truncated packet"):
+        remote_hand.guarded_close()
+    hand.fail_with = RuntimeError("driver bug")
+    with pytest.raises(RemoteError, match="RuntimeError: driver bug"):
+        remote_hand.guarded_close()
+    hand.fail_with = None
+    assert remote_hand.guarded_close().n_contacts == 4
+
+
+def test_state_is_published(hand_node: HandNode, arm_node: ArmNode, client_session) -> None:
+    keys = Keys(ROBOT)
+    hs = client_session.closing(Latest(client_session.session, keys.hand_state, HandStateMsg))
+    js = client_session.closing(
+        Latest(client_session.session, keys.arm_joint_states, JointStateMsg)
+    )
+    first = hs.wait(timeout=5.0)
+    second = hs.wait(timeout=5.0)
+    assert len(first.pressures) == N_SENSORS and second.stamp > first.stamp
+    assert js.wait(timeout=5.0).names == list(FakeArm.NAMES)
+    assert hs.invalid == 0 and js.invalid == 0
+
+
+def test_malformed_requests_get_error_replies(hand_node: HandNode, client_session) -> None:
+    session = client_session.session
+    key = Keys(ROBOT).hand_preshape
+
+    def ask(payload: bytes | None) -> Reply:
+        replies = list(session.get(key, payload=payload, timeout=3.0))
+        assert len(replies) == 1
+        return decode(replies[0].result.payload.to_bytes(), Reply[None])
+
+    cases = {
+        b"not json": "not valid JSON",
+        b'{"v": 1, "angle": "wide"}': "field `angle`",
+        b'{"v": 1}': "field `angle`",
+        b'{"v": 1, "angle": 0.5, "speed": 3}': "field `speed`",
+        b'{"v": 99, "angle": 0.5}': "schema version 99 is not supported",
+        None: "needs a PreshapeRequest payload",
+    }
+    for payload, text in cases.items():
+        reply = ask(payload)
+        assert not reply.ok and reply.error_type == "MessageError", payload
+        assert text in reply.error, (payload, reply.error)
+    assert ask(encode(PreshapeRequest(angle=0.3))).ok  # still serving
+    # A plain zenoh client without a payload gets the state (Empty is implied).
+    [r] = list(session.get(Keys(ROBOT).hand_state, timeout=3.0))
+    assert decode(r.ok.payload.to_bytes(), Reply[HandStateMsg]).result.preshape == 0.3
+
+
+def test_no_node_fails_fast_with_clear_error(client_session: ZenohSession) -> None:
+    rh = client_session.closing(RemoteHand(client_session.session, "nobody", timeout=2.0))
+    with pytest.raises(NodeUnavailableError, match="no hand node of robot 'nobody' answers"):
+        rh.state()
+    with pytest.raises(NodeUnavailableError, match="liveliness token"):
+        rh.wait_alive(timeout=0.2)
+
+
+def test_node_stopped_mid_session(remote_hand: RemoteHand, hand_node: HandNode) -> None:
+    assert remote_hand.state().preshape == 0.0
+    hand_node.close()
+    t0 = time.monotonic()
+    with pytest.raises(NodeUnavailableError):
+        remote_hand.guarded_close()
+    with pytest.raises(NodeUnavailableError, match="gone"):
+        remote_hand.open()
+    assert time.monotonic() - t0 < remote_hand.motion_timeout
+
+
+def test_node_killed_during_a_command() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    hand = FakeHand(close_delay=1.0)
+    with ZenohSession(ZenohSettings.client(endpoint)) as client:
+        ns = ZenohSession(ZenohSettings(listen=(endpoint,)))
+        try:
+            node = ns.closing(HandNode(hand, ns.session, ROBOT, state_hz=0))
+            rh = client.closing(RemoteHand(client.session, ROBOT, timeout=2.0, motion_timeout=20.0))
+            rh.connect()  # the client retries its connect endpoint until the node listens
+            errors: list[BaseException] = []
+
+            def grasp() -> None:
+                try:
+                    rh.guarded_close()
+                except BaseException as e:
+                    errors.append(e)
+
+            t = threading.Thread(target=grasp)
+            t.start()
+            while node.busy != "guarded_close":
+                time.sleep(0.01)
+            t0 = time.monotonic()
+            ns.close()  # the node's process goes away: token, queryables, session
+            t.join(timeout=25.0)
+            assert not t.is_alive()
+            elapsed = time.monotonic() - t0
+        finally:
+            ns.close()
+    [err] = errors
+    assert isinstance(err, NodeUnavailableError), err
+    assert elapsed < 20.0  # well inside the motion timeout: the dropped token woke the call
+
+
+def test_stop_interrupts_execute(remote_arm: RemoteArm, arm: FakeArm, client_session) -> None:
+    other = client_session.closing(RemoteArm(client_session.session, ROBOT, timeout=3.0))
+    long = JointTrajectory(
+        names=FakeArm.NAMES, times=np.array([0.0, 100.0]), positions=np.zeros((2, 6))
+    )
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            remote_arm.execute(long)
+        except BaseException as e:
+            errors.append(e)
+
+    t = threading.Thread(target=run)
+    t.start()
+    assert arm.executing.wait(5.0)
+    other.stop()  # served at once, beside the running execute
+    t.join(timeout=10.0)
+    assert not t.is_alive()
+    [err] = errors
+    assert isinstance(err, DataError) and "interrupted" in str(err)
+
+
+def test_expired_requests_are_not_executed(hand: FakeHand, hand_node: HandNode, client_session):
+    hand.close_delay = 0.6
+    session = client_session.session
+    keys = Keys(ROBOT)
+    # Occupy the worker, then queue an open whose caller only waits 0.2 s.
+    first = session.get(keys.hand_guarded_close, timeout=5.0)
+    while hand_node.busy != "guarded_close":
+        time.sleep(0.01)
+    late = session.get(f"{keys.hand_open}?timeout=0.2", payload=encode(Empty()), timeout=5.0)
+    [r1] = list(first)
+    assert r1.ok is not None
+    [r2] = list(late)
+    reply = decode(r2.err.payload.to_bytes(), Reply[None])
+    assert "not executed" in reply.error
+    assert ("open",) not in hand.calls
+
+
+def test_message_error_from_bad_reply(node_session: ZenohSession, client_session) -> None:
+    # A foreign queryable answering garbage: the client says so instead of crashing.
+    keys = Keys("foreign")
+
+    def answer(query) -> None:
+        query.reply(keys.hand_state, b'{"v": 1, "ok": true, "result": {"v": 1}}')
+
+    q = node_session.closing(node_session.session.declare_queryable(keys.hand_state, answer))
+    assert q is not None
+    rh = client_session.closing(RemoteHand(client_session.session, "foreign", timeout=2.0))
+    with pytest.raises(MessageError, match="result.pressures"):
+        rh.state()
