@@ -1,4 +1,4 @@
-"""Classifiers p(y | h) on triangle histograms, evaluated with numpy only (and numba for the planner).
+"""Classifiers p(y | h) on triangle histograms, evaluated with numpy (and numba for the planner).
 
 Inputs are any non-negative histograms of length D (raw counts or normalised): each classifier
 normalises as it needs. An all-zero histogram (no triangles yet) gives the uniform distribution.
@@ -27,6 +27,7 @@ exactly as ``proba`` does; the planner calls it from compiled code.
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -89,7 +90,9 @@ class ClassifierKernel:
         )
 
 
-@njit(cache=True)
+# "reassoc" lets LLVM vectorise the dot-product loops (a different summation order changes the
+# result by rounding only); no other fast-math flag, so inf and NaN keep their meaning.
+@njit(cache=True, fastmath={"reassoc"})
 def kernel_proba(
     kind: int,
     W: np.ndarray,
@@ -296,6 +299,11 @@ class _KernelClassifier:
         self._one_row_per_class = len(k.row_class) == k.n_classes and np.array_equal(
             k.row_class, np.arange(k.n_classes)
         )
+        # A row of ones under W: one matrix-vector product gives the scores and sum(h).
+        self._W_sum = np.ascontiguousarray(np.vstack([k.W, np.ones((1, k.W.shape[1]))]))
+        # a * (s / total + b) + c == (a / total) * s + (a * b + c)
+        self._platt_offset = k.platt_a * k.b + k.platt_b
+        self._uniform = np.full(k.n_classes, 1.0 / k.n_classes)
 
     def _per_class(self, v: np.ndarray, reduce: str) -> np.ndarray:
         """Combine per-row values (..., M) into per-class values (..., K)."""
@@ -461,12 +469,14 @@ class LinearSVMClassifier(_KernelClassifier):
     def proba(self, h: np.ndarray) -> np.ndarray:
         k = self.kernel()
         h = _as_histogram(h, k.W.shape[1])
-        total = h.sum()
+        st = self._W_sum.dot(h)
+        total = st[-1]
         if not total > 0:
-            return np.full(k.n_classes, 1.0 / k.n_classes)
-        s = (k.W @ h) / total + k.b
-        q = self._per_class(_sigmoid_neg(k.platt_a * s + k.platt_b), "sum")
-        return q / q.sum() if q.sum() > 0 else np.full(k.n_classes, 1.0 / k.n_classes)
+            return self._uniform.copy()
+        z = (k.platt_a / total) * st[:-1] + self._platt_offset
+        q = self._per_class(1.0 / (1.0 + np.exp(np.minimum(z, _Z_CLIP))), "sum")
+        qs = q.sum()
+        return q / qs if qs > 0 else self._uniform.copy()
 
     def proba_many(self, H: np.ndarray) -> np.ndarray:
         k = self.kernel()
@@ -606,15 +616,24 @@ class NearestNeighbourClassifier(_KernelClassifier):
     def proba(self, h: np.ndarray) -> np.ndarray:
         k = self.kernel()
         h = _as_histogram(h, k.W.shape[1])
-        total = h.sum()
-        if not total > 0:
-            return np.full(k.n_classes, 1.0 / k.n_classes)
         if k.kind == KIND_NN_INNER:
-            d = 1.0 - np.minimum(np.abs(k.W @ h) / np.sqrt(h @ h), 1.0)
+            norm = math.sqrt(h.dot(h))
+            if not norm > 0:
+                return self._uniform.copy()
+            d = 1.0 - np.minimum(np.abs(k.W.dot(h)) * (1.0 / norm), 1.0)
         else:
-            d = 1.0 - np.minimum(k.W, h / total).sum(axis=1)
+            total = h.sum()
+            if not total > 0:
+                return self._uniform.copy()
+            nz = (h > 0).nonzero()[0]
+            if 4 * len(nz) < len(h):
+                # Test-time histograms are sparse: min(w, 0) = 0 adds nothing outside h's support.
+                m = np.minimum(k.W.take(nz, axis=1), h[nz] * (1.0 / total))
+                d = 1.0 - m.dot(np.ones(len(nz)))
+            else:
+                d = 1.0 - np.minimum(k.W, h * (1.0 / total)).sum(axis=1)
         d = self._per_class(d, "min")
-        e = np.exp(-(d - d.min()) / k.temperature)
+        e = np.exp((d.min() - d) * (1.0 / k.temperature))
         return e / e.sum()
 
     def proba_many(self, H: np.ndarray) -> np.ndarray:

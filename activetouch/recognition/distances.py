@@ -44,7 +44,8 @@ def inner_product_distance(h1: np.ndarray, h2: np.ndarray) -> float:
 
 def intersection_distance(h1: np.ndarray, h2: np.ndarray) -> float:
     a, b = _pair(h1, h2)
-    return float(1.0 - np.minimum(l1_normalise(a), l1_normalise(b)).sum())
+    # Clamped: the normalised sums can exceed 1 by rounding.
+    return float(max(0.0, 1.0 - np.minimum(l1_normalise(a), l1_normalise(b)).sum()))
 
 
 def l2_distance(h1: np.ndarray, h2: np.ndarray) -> float:
@@ -62,7 +63,8 @@ def inner_product_distance_many(h: np.ndarray, H: np.ndarray) -> np.ndarray:
 
 def intersection_distance_many(h: np.ndarray, H: np.ndarray) -> np.ndarray:
     a, B = _one_many(h, H)
-    return 1.0 - np.minimum(l1_normalise(a)[None, :], l1_normalise_rows(B)).sum(axis=1)
+    sim = np.minimum(l1_normalise(a)[None, :], l1_normalise_rows(B)).sum(axis=1)
+    return np.maximum(1.0 - sim, 0.0)
 
 
 def l2_distance_many(h: np.ndarray, H: np.ndarray) -> np.ndarray:

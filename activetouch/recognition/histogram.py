@@ -120,17 +120,18 @@ class HistogramSpec:
         """(m,) int64 flat bin of each triangle; with return_clipped also how many triangles had a
         value outside [lo, hi] (counted in the edge bin)."""
         t = _triangles(triangles)
+        cols = np.ascontiguousarray(t.T)
         flat = np.zeros(len(t), dtype=np.int64)
-        outside = np.zeros(len(t), dtype=bool)
         for d in range(3):
-            col = t[:, d]
             # searchsorted on the edges themselves, so a value equal to an edge lands where
             # numpy.histogramdd would put it.
-            i = np.searchsorted(self.edges[d], col, side="right") - 1
+            i = np.searchsorted(self.edges[d], cols[d], side="right")
+            i -= 1
             np.clip(i, 0, self.bins - 1, out=i)
-            flat = flat * self.bins + i
-            outside |= (col < self.lo[d]) | (col > self.hi[d])
+            flat *= self.bins
+            flat += i
         if return_clipped:
+            outside = ((cols < self.lo[:, None]) | (cols > self.hi[:, None])).any(axis=0)
             return flat, int(outside.sum())
         return flat
 

@@ -37,7 +37,7 @@ MAX_PRECOMPUTED_CONTACTS = 38
 
 
 def parse_parameterisation(parameterisation: str) -> tuple[int, int, int]:
-    """Column indices into FEATURE_NAMES for e.g. "l0,l1,a0"; ConfigError if not 3 distinct names."""
+    """Column indices into FEATURE_NAMES for e.g. "l0,l1,a0"; ConfigError unless 3 distinct."""
     names = [s.strip() for s in str(parameterisation).split(",")]
     if len(names) != 3 or len(set(names)) != 3 or not all(n in FEATURE_NAMES for n in names):
         raise ConfigError(
@@ -59,11 +59,6 @@ def subset_table(n: int) -> np.ndarray:
     return table
 
 
-# Build the tables for every contact count a ReFlex grasp can have once, at import.
-for _n in range(MAX_PRECOMPUTED_CONTACTS + 1):
-    subset_table(_n)
-
-
 def _validated_points(xyz: np.ndarray) -> np.ndarray:
     pts = np.asarray(xyz, dtype=np.float64)
     if pts.ndim == 1 and pts.size == 0:
@@ -76,35 +71,81 @@ def _validated_points(xyz: np.ndarray) -> np.ndarray:
     return pts
 
 
+@lru_cache(maxsize=64)
+def _side_table(n: int) -> np.ndarray:
+    """(3, n choose 3) flat indices into an n x n distance matrix: for each triangle (i, j, k)
+    the sides jk, ik, ij (cached, read-only)."""
+    idx = subset_table(n)
+    i, j, k = idx[:, 0], idx[:, 1], idx[:, 2]
+    table = np.ascontiguousarray(np.stack([j * n + k, i * n + k, i * n + j]))
+    table.flags.writeable = False
+    return table
+
+
+# Build the tables for every contact count a ReFlex grasp can have once, at import.
+for _n in range(MAX_PRECOMPUTED_CONTACTS + 1):
+    subset_table(_n)
+    _side_table(_n)
+
+
+def _sort3_desc_rows(a: np.ndarray, out: np.ndarray) -> None:
+    """Sort the 3 rows of a (3, m) descending column by column into out (3, m); a is clobbered.
+
+    A sorting network of elementwise max/min: exact, and written into preallocated rows because
+    allocating many temporaries costs more than the arithmetic at these sizes.
+    """
+    np.maximum(a[0], a[1], out=out[0])  # larger of the first two
+    np.minimum(a[0], a[1], out=a[0])  # smaller of the first two
+    np.minimum(out[0], a[2], out=out[1])
+    np.maximum(out[0], a[2], out=out[0])  # largest of all
+    np.minimum(a[0], out[1], out=out[2])  # smallest of all
+    np.maximum(a[0], out[1], out=out[1])  # middle
+
+
+def feature_rows(
+    xyz: np.ndarray, min_side_m: float = 1e-4, min_angle_deg: float = 1.0
+) -> np.ndarray:
+    """(6, m) rows l0, l1, l2, a0, a1, a2 (metres, radians) of the non-degenerate triangles."""
+    pts = _validated_points(xyz)
+    n = len(pts)
+    if n < 3:
+        return np.zeros((6, 0), dtype=np.float64)
+    # All pairwise distances once (n x n), then look the three sides of each triangle up.
+    diff = pts[:, None, :] - pts[None, :, :]
+    dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff)).ravel()
+    sides = dist.take(_side_table(n))
+    out = np.empty((6, sides.shape[1]), dtype=np.float64)
+    _sort3_desc_rows(sides, out[:3])
+    # A zero side (coincident contacts) is always degenerate, whatever the threshold.
+    ok = (out[2] >= min_side_m) & (out[2] > 0.0)
+    if not ok.all():
+        out = out[:, ok]
+    sq = out[:3] * out[:3]
+    tmp = np.empty((3, out.shape[1]), dtype=np.float64)
+    den = np.empty(out.shape[1], dtype=np.float64)
+    # Law of cosines, angle r opposite side r:
+    # (sum of the other squares - own square) / (2 * product of the other sides).
+    for r, (p, q) in enumerate(((1, 2), (0, 2), (0, 1))):
+        np.add(sq[p], sq[q], out=tmp[r])
+        tmp[r] -= sq[r]
+        np.multiply(out[p], out[q], out=den)
+        den *= 2.0
+        tmp[r] /= den
+    # Clip: rounding can leave |cos| slightly above 1 for flat triangles.
+    np.clip(tmp, -1.0, 1.0, out=tmp)
+    np.arccos(tmp, out=tmp)
+    # Larger side <=> larger angle, so sorting keeps a_i opposite l_i; it only fixes rounding
+    # in isosceles triangles where the law of cosines can swap equal angles by an ulp.
+    _sort3_desc_rows(tmp, out[3:])
+    ok = out[5] >= np.deg2rad(min_angle_deg)
+    return out if ok.all() else out[:, ok]
+
+
 def triangle_features(
     xyz: np.ndarray, min_side_m: float = 1e-4, min_angle_deg: float = 1.0
 ) -> np.ndarray:
     """(m, 6) table l0, l1, l2, a0, a1, a2 (metres, radians) of the non-degenerate triangles."""
-    pts = _validated_points(xyz)
-    idx = subset_table(len(pts))
-    if len(idx) == 0:
-        return np.zeros((0, 6), dtype=np.float64)
-    p = pts[idx]  # (m, 3 vertices, 3)
-    # Side i is opposite vertex i; only the sorted lengths matter afterwards.
-    sides = np.empty((len(idx), 3), dtype=np.float64)
-    sides[:, 0] = np.linalg.norm(p[:, 1] - p[:, 2], axis=1)
-    sides[:, 1] = np.linalg.norm(p[:, 0] - p[:, 2], axis=1)
-    sides[:, 2] = np.linalg.norm(p[:, 0] - p[:, 1], axis=1)
-    sides = -np.sort(-sides, axis=1)
-    keep = sides[:, 2] >= min_side_m
-    sides = sides[keep]
-    l0, l1, l2 = sides[:, 0], sides[:, 1], sides[:, 2]
-    sq0, sq1, sq2 = l0 * l0, l1 * l1, l2 * l2
-    # Law of cosines; clip because rounding can leave |cos| slightly above 1 for flat triangles.
-    a0 = np.arccos(np.clip((sq1 + sq2 - sq0) / (2.0 * l1 * l2), -1.0, 1.0))
-    a1 = np.arccos(np.clip((sq0 + sq2 - sq1) / (2.0 * l0 * l2), -1.0, 1.0))
-    a2 = np.arccos(np.clip((sq0 + sq1 - sq2) / (2.0 * l0 * l1), -1.0, 1.0))
-    angles = np.stack([a0, a1, a2], axis=1)
-    # Larger side <=> larger angle, so sorting keeps a_i opposite l_i; it only fixes rounding
-    # in isosceles triangles where the law of cosines can swap equal angles by an ulp.
-    angles = -np.sort(-angles, axis=1)
-    keep = angles[:, 2] >= np.deg2rad(min_angle_deg)
-    return np.concatenate([sides[keep], angles[keep]], axis=1)
+    return np.ascontiguousarray(feature_rows(xyz, min_side_m, min_angle_deg).T)
 
 
 def triangle_params(
@@ -120,5 +161,5 @@ def triangle_params(
     Raises DataError for NaN/inf or a wrong shape, ConfigError for an unknown parameterisation.
     """
     cols = parse_parameterisation(parameterisation)
-    feats = triangle_features(xyz, min_side_m=min_side_m, min_angle_deg=min_angle_deg)
-    return np.ascontiguousarray(feats[:, cols])
+    rows = feature_rows(xyz, min_side_m=min_side_m, min_angle_deg=min_angle_deg)
+    return np.ascontiguousarray(rows[list(cols)].T)
