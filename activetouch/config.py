@@ -111,11 +111,22 @@ class SimConfig:
 
 
 @dataclass
+class SessionConfig:
+    """Recognition session (paper Alg. 2 around the planner): when to stop."""
+
+    confidence: float = 0.6  # top class probability that counts as confident
+    stable_grasps: int = 3  # ... for this many grasps in a row
+    max_moves: int = 20  # grasps, the first random one included
+    max_skips: int = 50  # unreachable poses tolerated before giving up
+
+
+@dataclass
 class Config:
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     grid: GridConfig = field(default_factory=GridConfig)
+    session: SessionConfig = field(default_factory=SessionConfig)
     sim: SimConfig = field(default_factory=SimConfig)
 
 

@@ -17,7 +17,12 @@ from activetouch import __version__
 from activetouch.errors import ActiveTouchError
 
 # Modules that register sub-commands, in the order `--help` lists them.
-COMMAND_MODULES: tuple[str, ...] = ("activetouch.service.bench_command",)
+COMMAND_MODULES: tuple[str, ...] = (
+    "activetouch.service.bench_command",
+    "activetouch.service.objects_command",
+    "activetouch.service.train_command",
+    "activetouch.service.recognize_command",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,86 @@
+"""Training collection (paper Alg. 1): grasp an object at every pose of its grid, store contacts.
+
+Runs on any `Hand` + `Arm` pair. Progress is saved in batches to the dataset, so an interrupted
+collection resumes where it stopped: poses already grasped, or found unreachable, are skipped.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from activetouch.errors import UnreachableError
+from activetouch.interfaces import Arm, Hand, Pose
+from activetouch.planning.grid import GridPoses
+from activetouch.recognition.dataset import Dataset, GraspRecord
+
+SKIPPED_ATTR = "skipped_pose_ids"  # unreachable poses, kept in the object's attrs for resuming
+
+
+@dataclass
+class CollectStats:
+    name: str
+    grasped: int = 0
+    skipped: int = 0
+    already_done: int = 0
+    seconds: float = 0.0
+
+
+def pending_poses(dataset: Dataset, name: str, grid: GridPoses) -> list[int]:
+    """Indices into `grid` of poses not yet grasped nor known to be unreachable."""
+    done: set[int] = set()
+    if name in dataset.object_names():
+        done = dataset.done_pose_ids(name) | set(dataset.attrs(name).get(SKIPPED_ATTR, []))
+    return [i for i, pid in enumerate(grid.pose_ids) if int(pid) not in done]
+
+
+def collect_object(
+    hand: Hand,
+    arm: Arm,
+    dataset: Dataset,
+    name: str,
+    grid: GridPoses,
+    attrs: dict | None = None,
+    batch: int = 16,
+    on_grasp: Callable[[int, int], None] | None = None,
+) -> CollectStats:
+    """Grasp `name` at every pending pose of `grid`, appending to `dataset` every `batch` poses.
+
+    `on_grasp(done, total)` is called after each pose (for progress bars)."""
+    t0 = time.perf_counter()
+    todo = pending_poses(dataset, name, grid)
+    stats = CollectStats(name=name, already_done=len(grid) - len(todo))
+    known = name in dataset.object_names()
+    skipped = list(dataset.attrs(name).get(SKIPPED_ATTR, [])) if known else []
+    base_attrs = dict(attrs or {})
+    records: list[GraspRecord] = []
+
+    def flush() -> None:
+        a = {**base_attrs, SKIPPED_ATTR: sorted(set(skipped))}
+        dataset.append(name, records, attrs=a)
+        records.clear()
+
+    for n, i in enumerate(todo, start=1):
+        pid = int(grid.pose_ids[i])
+        pose = Pose.from_array(grid.poses[i])
+        hand.open()
+        hand.preshape(float(grid.preshapes[i]))
+        try:
+            arm.move_wrist(pose)
+        except UnreachableError:
+            skipped.append(pid)
+            stats.skipped += 1
+        else:
+            grasp = hand.guarded_close()
+            records.append(GraspRecord(pid, pose, float(grid.preshapes[i]), grasp))
+            stats.grasped += 1
+            hand.open()
+        if len(records) >= batch or n == len(todo):
+            flush()
+        if on_grasp is not None:
+            on_grasp(stats.already_done + n, len(grid))
+    if not todo and name not in dataset.object_names():
+        flush()  # an empty grid still registers the object
+    stats.seconds = time.perf_counter() - t0
+    return stats

@@ -1,0 +1,66 @@
+"""One recognition in the twin: place the object, build the policy, run the session.
+
+Used by `activetouch recognize`, `eval`, `demo` and the daemon's simulated robot."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from activetouch import paths
+from activetouch.config import Config
+from activetouch.errors import ConfigError, DataError
+from activetouch.model import TrainedModel, load_model
+from activetouch.planning.policies import POLICY_NAMES, make_policy
+from activetouch.service.session import Progress, RecognitionResult, RecognitionSession
+from activetouch.sim.objects import ObjectLibrary
+
+DEFAULT_MODEL = "default"
+
+
+def model_path(root: Path, explicit: str | None) -> Path:
+    return Path(explicit) if explicit else paths.models_dir(root) / DEFAULT_MODEL
+
+
+def load_trained(path: Path) -> TrainedModel:
+    if not (path / "model.json").is_file():
+        raise DataError(f"no model at {path}: train one first with `activetouch train`")
+    return load_model(path)
+
+
+def check_request(policy: str, max_moves: int) -> None:
+    if policy not in POLICY_NAMES:
+        raise ConfigError(f"unknown policy {policy!r}; choose from {', '.join(POLICY_NAMES)}")
+    if max_moves < 1:
+        raise ConfigError(f"the move budget must be at least 1, got {max_moves}")
+
+
+def recognize_in_twin(
+    model: TrainedModel,
+    library: ObjectLibrary,
+    object_name: str,
+    policy_name: str,
+    seed: int,
+    cfg: Config,
+    max_moves: int | None = None,
+    on_progress: Callable[[Progress], None] | None = None,
+    cancel: threading.Event | None = None,
+) -> RecognitionResult:
+    """Recognise `object_name` placed in a fresh twin; deterministic for a seed."""
+    from activetouch.sim.twin import open_twin
+
+    session_cfg = cfg.session
+    if max_moves is not None:
+        session_cfg = type(cfg.session)(**{**vars(cfg.session), "max_moves": int(max_moves)})
+    check_request(policy_name, session_cfg.max_moves)
+    spec = library.get(object_name)
+    policy = make_policy(policy_name, cfg.planner, model.observation, model.classifier.kernel())
+    rng = np.random.default_rng(seed)
+    with open_twin(spec, cfg.sim, seed=seed) as twin:
+        session = RecognitionSession(
+            twin.hand, twin.arm, model, policy, session_cfg, rng, on_progress, cancel
+        )
+        return session.run()

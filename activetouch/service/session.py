@@ -1,0 +1,213 @@
+"""The recognition session (paper Alg. 2, test stage) on any `Hand` + `Arm` pair.
+
+A first grasp at a random training pose; then repeat: the policy plans the next poses from the
+current histogram, the arm moves to each, the hand grasps, the histogram grows and the
+classifier answers after every grasp (the paper classified only after each whole path). Poses
+that cannot be reached are skipped, marked visited and counted, as on the real robot. It stops
+when the top class stays above `confidence` for `stable_grasps` grasps in a row, when the move
+budget is spent, when no unvisited pose remains, or when cancelled.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from activetouch.config import SessionConfig
+from activetouch.errors import ConfigError, UnreachableError
+from activetouch.interfaces import Arm, Grasp, Hand, Pose
+from activetouch.model import TrainedModel
+from activetouch.planning.policies import Plan, PlanningState, Policy
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Published after every grasp."""
+
+    move: int  # grasps so far, the first one included
+    pose_id: int
+    pose: np.ndarray  # (7,) wrist pose in the object frame
+    n_contacts: int
+    top: list[tuple[str, float]]  # the three most probable classes
+    skipped: int
+    elapsed_s: float
+
+
+@dataclass
+class RecognitionResult:
+    label: str
+    probability: float
+    labels: list[str] = field(default_factory=list)  # after each grasp
+    probabilities: list[list[float]] = field(default_factory=list)  # p(y|h) after each grasp
+    pose_ids: list[int] = field(default_factory=list)  # executed, in order
+    contacts: list[np.ndarray] = field(default_factory=list)  # per grasp (n, 3), object frame
+    counts: np.ndarray | None = None  # final histogram counts
+    skipped: int = 0
+    planning_s: float = 0.0
+    elapsed_s: float = 0.0
+    stop_reason: str = ""  # confident | budget | exhausted | cancelled | skips
+
+    @property
+    def moves(self) -> int:
+        return len(self.labels)
+
+
+def hand_to_object(pose: Pose, xyz_hand: np.ndarray) -> np.ndarray:
+    """Contact points from the hand frame into the object frame, for figures."""
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_quat(pose.quat).as_matrix()
+    return np.asarray(xyz_hand, dtype=np.float64).reshape(-1, 3) @ R.T + pose.xyz
+
+
+def top_k(p: np.ndarray, names: tuple[str, ...], k: int = 3) -> list[tuple[str, float]]:
+    order = np.argsort(-p, kind="stable")[:k]
+    return [(names[i], float(p[i])) for i in order]
+
+
+class RecognitionSession:
+    def __init__(
+        self,
+        hand: Hand,
+        arm: Arm,
+        model: TrainedModel,
+        policy: Policy,
+        cfg: SessionConfig,
+        rng: np.random.Generator,
+        on_progress: Callable[[Progress], None] | None = None,
+        cancel: threading.Event | None = None,
+    ) -> None:
+        if cfg.max_moves < 1:
+            raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
+        if cfg.stable_grasps < 1:
+            raise ConfigError(f"session.stable_grasps must be >= 1, got {cfg.stable_grasps}")
+        self.hand, self.arm, self.model, self.policy = hand, arm, model, policy
+        self.cfg, self.rng = cfg, rng
+        self.on_progress = on_progress
+        self.cancel = cancel or threading.Event()
+        obs = model.observation
+        self._poses = np.concatenate([obs.pose_xyz, obs.pose_quat], axis=1)
+
+    def _grasp_at(self, pose_id: int) -> tuple[Grasp, Pose]:
+        pose = Pose.from_array(self._poses[pose_id])
+        self.hand.open()
+        self.arm.move_wrist(pose)  # raises UnreachableError
+        grasp = self.hand.guarded_close()
+        self.hand.open()
+        return grasp, pose
+
+    def run(self) -> RecognitionResult:
+        t0 = time.perf_counter()
+        names = self.model.class_names
+        res = RecognitionResult(label="", probability=0.0)
+        visited: list[int] = []
+        counts = np.zeros(self.model.spec.n_bins)
+        state: PlanningState | None = None
+        streak = 0
+
+        def observe(pose_id: int, grasp: Grasp, pose: Pose) -> None:
+            nonlocal counts, state, streak
+            tris = self.model.triangles(grasp.xyz)
+            add = self.model.spec.counts(tris)
+            cells = self.model.observation.cells_of(tris)
+            counts = counts + add
+            visited.append(pose_id)
+            state = PlanningState(
+                pose=pose_id,
+                visited=np.array(visited, dtype=np.int64),
+                counts=counts,
+                cells=cells,
+            )
+            p = self.model.proba(counts)
+            best = int(np.argmax(p))
+            res.labels.append(names[best])
+            res.probabilities.append([float(v) for v in p])
+            res.pose_ids.append(pose_id)
+            res.contacts.append(hand_to_object(pose, grasp.xyz))
+            # Consecutive confident grasps agreeing on the same top class.
+            if p[best] < self.cfg.confidence:
+                streak = 0
+            elif streak > 0 and res.labels[-2] == names[best]:
+                streak += 1
+            else:
+                streak = 1
+            if self.on_progress is not None:
+                self.on_progress(
+                    Progress(
+                        move=len(res.labels),
+                        pose_id=pose_id,
+                        pose=self._poses[pose_id].copy(),
+                        n_contacts=grasp.n_contacts,
+                        top=top_k(p, names),
+                        skipped=res.skipped,
+                        elapsed_s=time.perf_counter() - t0,
+                    )
+                )
+
+        def skip(pose_id: int) -> None:
+            nonlocal state
+            visited.append(pose_id)
+            res.skipped += 1
+            if state is not None:  # the arm stayed where it was
+                state = PlanningState(
+                    pose=state.pose,
+                    visited=np.array(visited, dtype=np.int64),
+                    counts=state.counts,
+                    cells=state.cells,
+                )
+
+        # First grasp: a random training pose that can be reached.
+        order = self.rng.permutation(len(self._poses))
+        for pid in order:
+            if self.cancel.is_set() or res.skipped >= self.cfg.max_skips:
+                break
+            try:
+                grasp, pose = self._grasp_at(int(pid))
+            except UnreachableError:
+                skip(int(pid))
+                continue
+            observe(int(pid), grasp, pose)
+            break
+
+        while state is not None:
+            if self.cancel.is_set():
+                res.stop_reason = "cancelled"
+                break
+            if streak >= self.cfg.stable_grasps:
+                res.stop_reason = "confident"
+                break
+            if len(res.labels) >= self.cfg.max_moves:
+                res.stop_reason = "budget"
+                break
+            if res.skipped >= self.cfg.max_skips:
+                res.stop_reason = "skips"
+                break
+            tp = time.perf_counter()
+            plan: Plan = self.policy.plan(state, self.rng)
+            res.planning_s += time.perf_counter() - tp
+            if plan.exhausted:
+                res.stop_reason = "exhausted"
+                break
+            for pid in plan.poses:
+                if self.cancel.is_set() or len(res.labels) >= self.cfg.max_moves:
+                    break
+                try:
+                    grasp, pose = self._grasp_at(int(pid))
+                except UnreachableError:
+                    skip(int(pid))
+                    continue
+                observe(int(pid), grasp, pose)
+                if streak >= self.cfg.stable_grasps:
+                    break
+        if not res.stop_reason:
+            res.stop_reason = "cancelled" if self.cancel.is_set() else "skips"
+        res.counts = counts
+        if res.labels:
+            p = np.asarray(res.probabilities[-1])
+            res.label, res.probability = res.labels[-1], float(p.max())
+        res.elapsed_s = time.perf_counter() - t0
+        return res

@@ -1,0 +1,118 @@
+"""`activetouch train`: collect the missing training grasps in the twin, then fit the model."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from activetouch import paths
+from activetouch.config import load_config
+from activetouch.errors import ConfigError
+from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
+
+DEFAULT_DATASET = "twin"
+DEFAULT_MODEL = "default"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from activetouch.service.cli import add_common_options
+
+    p = sub.add_parser("train", help="collect training grasps in the twin and fit the model")
+    p.add_argument(
+        "--objects",
+        default=",".join(PAPER_SIM_OBJECTS),
+        help="comma-separated object names (default: the paper's 7 simulated objects)",
+    )
+    p.add_argument("--out", metavar="DIR", default=None, help="model directory to write")
+    p.add_argument("--dataset", metavar="DIR", default=None, help="dataset directory")
+    p.add_argument("--workers", type=int, default=None, help="parallel collection processes")
+    add_common_options(p)
+    p.set_defaults(func=run)
+
+
+def parse_objects(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ConfigError("--objects: give at least one object name")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"--objects: a name is repeated in {text!r}")
+    return names
+
+
+def train(
+    root: Path,
+    names: list[str],
+    cfg_path: str | None,
+    overrides: list[str],
+    out: Path | None,
+    dataset: Path | None,
+    workers: int | None,
+    console: Console,
+) -> Path:
+    from activetouch.service.training import collect, fit_and_save
+
+    cfg = load_config(cfg_path, overrides)
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {workers}")
+    library = ObjectLibrary(paths.objects_dir(root))
+    with console.status("preparing the object library"):
+        library.ensure_builtins()
+    dataset = dataset or paths.datasets_dir(root) / DEFAULT_DATASET
+    out = out or paths.models_dir(root) / DEFAULT_MODEL
+
+    t0 = time.perf_counter()
+    with Progress(
+        TextColumn("{task.description:>14}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=False,
+    ) as bar:
+        tasks: dict[str, int] = {}
+
+        def on_progress(name: str, done: int, total: int) -> None:
+            if name not in tasks:
+                tasks[name] = bar.add_task(name, total=total)
+            bar.update(tasks[name], completed=done)
+
+        stats = collect(library, dataset, names, cfg, workers=workers, progress=on_progress)
+    t_collect = time.perf_counter() - t0
+    with console.status("fitting the classifier and the observation model"):
+        t1 = time.perf_counter()
+        model = fit_and_save(dataset, names, cfg, out)
+        t_fit = time.perf_counter() - t1
+
+    table = Table(title="training")
+    for col in ("object", "new grasps", "unreachable", "already stored"):
+        table.add_column(col, justify="right" if col != "object" else "left")
+    for s in sorted(stats, key=lambda s: names.index(s.name)):
+        table.add_row(s.name, str(s.grasped), str(s.skipped), str(s.already_done))
+    console.print(table)
+    obs = model.observation
+    console.print(
+        f"collected in {t_collect:.1f} s, fitted in {t_fit:.1f} s: {len(names)} classes, "
+        f"{obs.n_poses} poses, {obs.n_actions} actions, granularity {obs.granularity}"
+    )
+    console.print(f"model written to {out}")
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    root = paths.data_dir(args.data)
+    train(
+        root,
+        parse_objects(args.objects),
+        args.config,
+        args.overrides,
+        Path(args.out) if args.out else None,
+        Path(args.dataset) if args.dataset else None,
+        args.workers,
+        Console(),
+    )
+    return 0

@@ -1,0 +1,123 @@
+"""Train in the twin (paper Alg. 1): collect the missing grasps of each object, in parallel
+processes (one twin per process), then fit the model and save it."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import multiprocessing as mp
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from activetouch.config import Config
+from activetouch.model import TrainedModel, train_model
+from activetouch.planning.grid import training_grid
+from activetouch.recognition.dataset import Dataset
+from activetouch.service.collect import CollectStats, collect_object, pending_poses
+from activetouch.sim.objects import ObjectLibrary
+
+Progress = Callable[[str, int, int], None]  # object, poses done, poses in its grid
+
+
+def dataset_meta(cfg: Config) -> dict:
+    """Settings a dataset is bound to: resuming with other settings would mix two datasets."""
+    return {
+        "source": "twin",
+        "grid": dataclasses.asdict(cfg.grid),
+        "sim": dataclasses.asdict(cfg.sim),
+    }
+
+
+def _collect_one(
+    library_root: str, dataset_path: str, name: str, cfg: Config, queue: object | None
+) -> CollectStats:
+    # Runs in a worker process: it opens its own simulator client and dataset handle.
+    from activetouch.sim.twin import open_twin
+
+    spec = ObjectLibrary(library_root).get(name)
+    grid = training_grid(spec.extents, cfg.grid)
+    ds = Dataset.open(dataset_path)
+
+    def report(done: int, total: int) -> None:
+        if queue is not None:
+            queue.put((name, done, total))  # type: ignore[attr-defined]
+
+    with open_twin(spec, cfg.sim, seed=cfg.sim.seed) as twin:
+        return collect_object(
+            twin.hand,
+            twin.arm,
+            ds,
+            name,
+            grid,
+            attrs={"extents": [float(v) for v in spec.extents], "set": spec.set},
+            on_grasp=report,
+        )
+
+
+def collect(
+    library: ObjectLibrary,
+    dataset_path: Path,
+    names: list[str],
+    cfg: Config,
+    workers: int | None = None,
+    progress: Progress | None = None,
+) -> list[CollectStats]:
+    """Collect every missing grasp of `names` into the dataset at `dataset_path`."""
+    specs = {n: library.get(n) for n in names}  # unknown names fail here, before any work
+    ds = Dataset.create_or_open(dataset_path, dataset_meta(cfg))
+    todo = [n for n in names if pending_poses(ds, n, training_grid(specs[n].extents, cfg.grid))]
+    stats = [CollectStats(name=n) for n in names if n not in todo]
+    if not todo:
+        return stats
+    workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
+    if workers == 1:
+        for n in todo:
+            q = _CallbackQueue(progress)
+            stats.append(_collect_one(str(library.root), str(dataset_path), n, cfg, q))
+        return stats
+    # Spawn, not fork: PyBullet and Zenoh keep threads and state that do not survive fork().
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as manager:
+        queue = manager.Queue()
+        with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            futures = [
+                pool.submit(_collect_one, str(library.root), str(dataset_path), n, cfg, queue)
+                for n in todo
+            ]
+            pending = set(futures)
+            while pending:
+                _, pending = cf.wait(pending, timeout=0.1)
+                _drain(queue, progress)
+            _drain(queue, progress)
+            stats.extend(f.result() for f in futures)
+    return stats
+
+
+class _CallbackQueue:
+    """A queue-like sink that calls the progress callback directly (single-process case)."""
+
+    def __init__(self, progress: Progress | None) -> None:
+        self.progress = progress
+
+    def put(self, item: tuple[str, int, int]) -> None:
+        if self.progress is not None:
+            self.progress(*item)
+
+
+def _drain(queue: object, progress: Progress | None) -> None:
+    import queue as queue_mod
+
+    while True:
+        try:
+            item = queue.get_nowait()  # type: ignore[attr-defined]
+        except queue_mod.Empty:
+            return
+        if progress is not None:
+            progress(*item)
+
+
+def fit_and_save(dataset_path: Path, names: list[str], cfg: Config, out: Path) -> TrainedModel:
+    model = train_model(Dataset.open(dataset_path), cfg, objects=names)
+    model.save(out)
+    return model
