@@ -336,7 +336,7 @@ def _enc_hook(obj: Any) -> Any:
         return obj.tolist()
     if isinstance(obj, np.generic):
         return obj.item()
-    raise NotImplementedError(f"cannot encode objects of type {type(obj).__name__}")
+    raise TypeError(f"cannot encode objects of type {type(obj).__name__}")
 
 
 _ENCODER = msgspec.json.Encoder(enc_hook=_enc_hook)

@@ -219,7 +219,7 @@ def test_remote_hand_round_trip(remote_hand: RemoteHand, hand: FakeHand) -> None
 def test_remote_arm_round_trip(remote_arm: RemoteArm, arm: FakeArm) -> None:
     pose = Pose(np.array([0.1, -0.2, 0.3]), np.array([0.0, 0.0, 0.0, 2.0]))
     remote_arm.move_wrist(pose)
-    (name, got), = arm.calls
+    ((name, got),) = arm.calls
     assert name == "move_wrist"
     np.testing.assert_allclose(got.as_array(), pose.as_array())
     traj = JointTrajectory(
@@ -245,7 +245,7 @@ def test_unreachable_crosses_the_wire_as_itself(remote_arm: RemoteArm) -> None:
 
 
 def test_device_errors_keep_their_type(remote_hand: RemoteHand, hand: FakeHand) -> None:
-    with pytest.raises(ValueError, match="outside 0..1.6"):
+    with pytest.raises(ValueError, match=r"outside 0\.\.1\.6"):
         remote_hand.preshape(2.5)
     hand.fail_with = DataError("tactile board sent a truncated packet")
     with pytest.raises(DataError, match="truncated packet"):
@@ -399,5 +399,5 @@ def test_message_error_from_bad_reply(node_session: ZenohSession, client_session
     q = node_session.closing(node_session.session.declare_queryable(keys.hand_state, answer))
     assert q is not None
     rh = client_session.closing(RemoteHand(client_session.session, "foreign", timeout=2.0))
-    with pytest.raises(MessageError, match="result.pressures"):
+    with pytest.raises(MessageError, match=r"result\.pressures"):
         rh.state()
