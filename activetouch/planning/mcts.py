@@ -145,7 +145,7 @@ def _scores_add(
     """Add outcome `o`'s triangles to the histogram (and to S when the kernel is linear)."""
     WT = kern[8]
     M = WT.shape[1]
-    linear = kern[0] != KIND_NN_INTERSECTION
+    linear = kern[0] != KIND_NN_INTERSECTION and kern[9]
     for k in range(out_ptr[o], out_ptr[o + 1]):
         j = out_bin[k]
         if linear:
@@ -159,7 +159,7 @@ def _scores_add(
 @njit(cache=True)
 def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
     kind = kern[0]
-    if kind == KIND_NN_INTERSECTION:
+    if kind == KIND_NN_INTERSECTION or not kern[9]:
         return _proba_full(kern, hist)
     b, row_class, platt_a, platt_b, temperature, n_classes = (
         kern[2],
@@ -702,8 +702,9 @@ class SearchResult:
         return 1.0 - self.value
 
 
-def kernel_tuple(kernel: ClassifierKernel) -> tuple:
-    """The classifier kernel as the argument tuple the compiled code takes."""
+def kernel_tuple(kernel: ClassifierKernel, incremental: bool = True) -> tuple:
+    """The classifier kernel as the argument tuple the compiled code takes. `incremental`
+    False makes every p(y | h) a full `kernel_proba` call (for measuring what it saves)."""
     f64 = np.float64
     return (
         np.int64(kernel.kind),
@@ -715,6 +716,7 @@ def kernel_tuple(kernel: ClassifierKernel) -> tuple:
         f64(kernel.temperature),
         np.int64(kernel.n_classes),
         np.ascontiguousarray(np.asarray(kernel.W, dtype=f64).T),  # columns per bin, contiguous
+        np.bool_(incremental),
     )
 
 
@@ -762,9 +764,13 @@ class TreeSearch:
     """The planner's search, bound to one observation model and classifier kernel.
 
     Converts the arrays once and keeps the tree storage between searches (it grows when a
-    larger simulation budget is asked for), so repeated planning allocates nothing new."""
+    larger simulation budget is asked for), so repeated planning allocates nothing new. A
+    result's `tree` (keep_tree=True) is therefore overwritten by the next search.
+    `incremental`: keep linear classifier scores per added triangle (see `_scores_add`)."""
 
-    def __init__(self, model: ObservationModel, kernel: ClassifierKernel) -> None:
+    def __init__(
+        self, model: ObservationModel, kernel: ClassifierKernel, *, incremental: bool = True
+    ) -> None:
         if kernel.n_classes != model.n_classes:
             raise PlanningError(
                 f"classifier has {kernel.n_classes} classes, observation model "
@@ -778,7 +784,7 @@ class TreeSearch:
         self.model = model
         self.kernel = kernel
         self._m = model_tuple(model)
-        self._k = kernel_tuple(kernel)
+        self._k = kernel_tuple(kernel, incremental)
         deg = np.diff(model.edge_ptr)
         self.max_degree = int(deg.max()) if deg.size else 0
         self._tree: Tree | None = None
