@@ -12,8 +12,9 @@ valid dataset (plus at most one stray file that the next append removes). Nothin
 the arrays are plain ``.npy`` members of a zip, written with fixed timestamps so equal
 contents give equal bytes (and an equal `Dataset.checksum`).
 
-One writer at a time; a reader sees the dataset as of its `open` (reopen after another
-process appends: the superseded file is deleted).
+Writers in several processes (e.g. one collector per object) are serialised by an flock on
+``DIR/.lock``; each append re-reads the manifest under the lock, so none loses another's object.
+A reader sees the dataset as of its `open` or its own last append (reopen to see others').
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import os
 import re
 import tempfile
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ from activetouch.interfaces import Grasp, Pose
 FORMAT_NAME = "activetouch-dataset"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
+LOCK_FILE = ".lock"  # empty; writers hold an flock on it while they update the manifest
 OBJECTS_DIR = "objects"
 
 # Safe, portable file names: no dots (they separate the generation), no separators.
@@ -250,9 +252,9 @@ def _merge(old: dict[str, np.ndarray] | None, new: dict[str, np.ndarray]) -> dic
 
 
 @contextlib.contextmanager
-def _manifest_lock(path: Path):
-    """Exclusive advisory lock on the dataset directory, across processes."""
-    with open(path / ".lock", "a+b") as f:
+def _manifest_lock(path: Path) -> Iterator[None]:
+    """Exclusive advisory lock on the dataset directory, across processes (POSIX flock)."""
+    with open(path / LOCK_FILE, "a+b") as f:
         fcntl.flock(f.fileno(), fcntl.LOCK_EX)
         try:
             yield
@@ -289,6 +291,18 @@ class Dataset:
         meta = _json_roundtrip(meta or {}, "dataset meta")
         if not isinstance(meta, dict):
             raise DataError("dataset meta must be a dict")
+        if p.exists() and not p.is_dir():
+            raise DataError(f"cannot create a dataset at {p}: it is a file")
+        try:
+            (p / OBJECTS_DIR).mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise DataError(f"cannot create a dataset at {p}: {e}") from None
+        # Parallel collectors may create or extend the same dataset at once.
+        with _manifest_lock(p):
+            return cls._create_or_open_locked(p, meta)
+
+    @classmethod
+    def _create_or_open_locked(cls, p: Path, meta: dict[str, Any]) -> Dataset:
         if (p / MANIFEST).is_file():
             ds = cls.open(p)
             stored = ds._manifest["meta"]
@@ -304,12 +318,6 @@ class Dataset:
                 manifest = dict(ds._manifest, meta={**stored, **added})
                 ds._write_manifest(manifest)
             return ds
-        if p.exists() and not p.is_dir():
-            raise DataError(f"cannot create a dataset at {p}: it is a file")
-        try:
-            (p / OBJECTS_DIR).mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise DataError(f"cannot create a dataset at {p}: {e}") from None
         manifest = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,

@@ -260,3 +260,24 @@ def test_parallel_processes_appending_different_objects_lose_nothing(tmp_path: P
     ds = Dataset.open(tmp_path)
     assert sorted(ds.object_names()) == ["a", "b"]
     assert ds.done_pose_ids("a") == ds.done_pose_ids("b") == set(range(8))
+
+
+def _create_and_append(path: str, name: str) -> None:
+    ds = Dataset.create_or_open(path, meta={"step": 25})
+    ds.append(name, [make_record(0, np.random.default_rng(0))])
+
+
+def test_parallel_creation_of_a_new_dataset_loses_nothing(tmp_path: Path) -> None:
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")  # cheap to start; the lock is per open file, not per process
+    names = ["c0", "c1", "c2", "c3"]
+    procs = [ctx.Process(target=_create_and_append, args=(str(tmp_path / "d"), n)) for n in names]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+        assert p.exitcode == 0
+    ds = Dataset.open(tmp_path / "d")
+    assert ds.object_names() == names
+    assert ds.meta == {"step": 25}
