@@ -41,7 +41,11 @@ from activetouch.interfaces import (
     Hand,
     HandState,
 )
-from activetouch.sim.reflex_urdf import coupled_joints
+from activetouch.sim.reflex_urdf import (
+    coupled_joints,
+    finger_sensor_positions,
+    palm_site_positions,
+)
 from activetouch.sim.world import HandContacts, SimWorld
 
 STOP_CONTACT = "contact"
@@ -106,6 +110,9 @@ class SimHand(Hand):
         self._finger_of_link = {int(links.proximal[f]): f for f in range(N_FINGERS)}
         self._finger_of_link.update({int(links.distal[f]): f for f in range(N_FINGERS)})
         self._is_distal = {int(links.distal[f]) for f in range(N_FINGERS)}
+        self._pad = int(links.pad)
+        self._far_sites = np.full((N_SENSORS, 3), 1.0e3)
+        self._far_sites[N_FINGER_SENSORS:] = palm_site_positions(world.geometry)
         self.last_close: CloseResult | None = None
 
     # -- Hand interface -------------------------------------------------------------------
@@ -251,25 +258,38 @@ class SimHand(Hand):
         and distal links."""
         cfg, w = self.cfg, self.world
         depth = np.zeros((N_FINGERS, 2))
-        for link, dep in zip(contacts.link.tolist(), contacts.depth.tolist(), strict=True):
+        sensing = np.zeros(len(contacts), dtype=bool)
+        fingers: set[int] = set()
+        for i, (link, dep) in enumerate(
+            zip(contacts.link.tolist(), contacts.depth.tolist(), strict=True)
+        ):
             f = self._finger_of_link.get(link)
             if f is not None:
                 col = 1 if link in self._is_distal else 0
                 depth[f, col] = max(depth[f, col], dep)
-        sensing = np.isin(contacts.link, w.links.site_link)
-        if np.any(sensing):
-            xyz_hand = w.world_to_hand(contacts.position[sensing])
+                sensing[i] = True
+                fingers.add(f)
+            elif link == self._pad:
+                sensing[i] = True
+        force = np.zeros(N_SENSORS)
+        if sensing.any():
+            # Sites of fingers without contacts stay far away: only touched links need them.
+            sites = self._far_sites.copy()
+            for f in fingers:
+                sites[f * SENSORS_PER_FINGER : (f + 1) * SENSORS_PER_FINGER] = (
+                    finger_sensor_positions(
+                        w.geometry, f, w.preshape_angle, w.proximal[f], w.distal[f]
+                    )
+                )
             force = site_forces(
                 contacts.link[sensing],
-                xyz_hand,
+                w.world_to_hand(contacts.position[sensing]),
                 contacts.depth[sensing],
                 w.links.site_link,
-                w.sensor_sites_hand(),
+                sites,
                 self._site_radius,
                 cfg.contact_stiffness_n_per_m,
             )
-        else:
-            force = np.zeros(N_SENSORS)
         pressures = force * cfg.pressure_per_newton
         if cfg.noise_std > 0:
             pressures = pressures + rng.normal(0.0, cfg.noise_std, N_SENSORS)

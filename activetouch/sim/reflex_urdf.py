@@ -129,14 +129,40 @@ class ReflexGeometry:
         )
 
     @property
+    def chamfer_start_x(self) -> float:
+        """Where the fingertip chamfer (the tip sensor's tilted face) meets the distal top."""
+        top = max(self.distal_sensor_z[:-1])
+        tip_x, tip_z = self.distal_sensor_x[-1], self.distal_sensor_z[-1]
+        t = self.tip_sensor_tilt
+        if t <= 1e-6:
+            return float(self.distal_size[0])
+        return float(min(tip_x, tip_x - (top - tip_z) / np.tan(t)))
+
+    @property
     def distal_box(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) of the distal collision box: top face at the (untilted) distal sensors."""
-        length, width, height = self.distal_size
+        """(lo, hi) of the distal collision box, top face at the (untilted) distal sensors,
+        ending where the fingertip chamfer begins."""
+        _, width, height = self.distal_size
         top = max(self.distal_sensor_z[:-1])
         return (
             np.array([0.0, -width / 2, top - height]),
-            np.array([length, width / 2, top]),
+            np.array([self.chamfer_start_x, width / 2, top]),
         )
+
+    @property
+    def fingertip_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(centre, size) of the fingertip box in the distal frame, pitched by tip_sensor_tilt:
+        its top face is the tip sensor's plane, from the chamfer start to just past the tip, so
+        the fingertip sensor faces forward-up as on the real, rounded fingertip."""
+        top = max(self.distal_sensor_z[:-1])
+        tip = np.array([self.distal_sensor_x[-1], 0.0, self.distal_sensor_z[-1]])
+        r = rot_y(self.tip_sensor_tilt)
+        start = r.T @ (np.array([self.chamfer_start_x, 0.0, top]) - tip)  # in the tilted frame
+        end_x = max(float(start[0]) + 1e-3, self.distal_size[0] - tip[0])  # past the tip
+        depth = 0.7 * self.distal_size[2]
+        centre_tilted = np.array([(start[0] + end_x) / 2, 0.0, -depth / 2])
+        size = np.array([end_x - start[0], self.distal_size[1], depth])
+        return tip + r @ centre_tilted, size
 
 
 def geometry_with_distal_sites(
@@ -217,6 +243,20 @@ def palm_site_positions(geom: ReflexGeometry) -> np.ndarray:
     return np.column_stack([xy, np.full(len(xy), geom.palm_sensor_z)])
 
 
+def finger_sensor_positions(
+    geom: ReflexGeometry, finger: int, preshape: float, proximal: float, distal: float
+) -> np.ndarray:
+    """(9, 3) hand-frame XYZ of finger `finger`'s sensor sites (0 nearest the palm ... 8 tip)."""
+    prox_sites, dist_sites = finger_site_offsets(geom)
+    t_prox, t_dist = finger_link_transforms(geom, finger, preshape, proximal, distal)
+    return np.concatenate(
+        [
+            prox_sites @ t_prox[:3, :3].T + t_prox[:3, 3],
+            dist_sites @ t_dist[:3, :3].T + t_dist[:3, 3],
+        ]
+    )
+
+
 def sensor_positions(
     geom: ReflexGeometry,
     preshape: float,
@@ -226,14 +266,10 @@ def sensor_positions(
     """(38, 3) hand-frame XYZ of every sensor site (ids as in activetouch.interfaces)."""
     prox_angles = np.asarray(proximal, dtype=np.float64).reshape(N_FINGERS)
     dist_angles = np.asarray(distal, dtype=np.float64).reshape(N_FINGERS)
-    prox_sites, dist_sites = finger_site_offsets(geom)
     out = np.empty((N_SENSORS, 3))
     for f in range(N_FINGERS):
-        t_prox, t_dist = finger_link_transforms(geom, f, preshape, prox_angles[f], dist_angles[f])
-        base = f * SENSORS_PER_FINGER
-        out[base : base + N_PROXIMAL_SENSORS] = prox_sites @ t_prox[:3, :3].T + t_prox[:3, 3]
-        out[base + N_PROXIMAL_SENSORS : base + SENSORS_PER_FINGER] = (
-            dist_sites @ t_dist[:3, :3].T + t_dist[:3, 3]
+        out[f * SENSORS_PER_FINGER : (f + 1) * SENSORS_PER_FINGER] = finger_sensor_positions(
+            geom, f, preshape, prox_angles[f], dist_angles[f]
         )
     out[N_FINGERS * SENSORS_PER_FINGER :] = palm_site_positions(geom)
     return out
@@ -342,8 +378,11 @@ def _joint(
     return s + "  </joint>\n"
 
 
-def build_urdf(geom: ReflexGeometry | None = None) -> str:
-    """The hand's URDF text (boxes with the real sizes and masses, sensor-site links)."""
+def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) -> str:
+    """The hand's URDF text: boxes with the real sizes and masses, and (if `sensor_links`)
+    a massless fixed link per sensor site. The twin loads it without the site links: 38 extra
+    links make every PyBullet joint reset ~8x slower, and `sensor_positions` gives the same
+    positions (tested against the links)."""
     g = geom or ReflexGeometry()
     parts = ['<?xml version="1.0"?>\n<robot name="reflex">\n']
     parts.append(_box_link("base", g.base_mass, np.array(g.housing_lo), np.array(g.housing_hi)))
@@ -353,17 +392,8 @@ def build_urdf(geom: ReflexGeometry | None = None) -> str:
     prox_lo, prox_hi = g.proximal_box
     dist_lo, dist_hi = g.distal_box
     prox_sites, dist_sites = finger_site_offsets(g)
-    # The fingertip is rounded: a second box, tilted like the tip sensor, whose top face passes
-    # through the tip site, so the tip sensor faces forward-up as on the real finger.
-    tip_len = 0.012
-    tip_h = g.distal_size[2] * 0.6
     tilt = g.tip_sensor_tilt
-    tip_site = dist_sites[-1]
-    # Box centre: from the tip site go half a length back along the tilted x axis and half a
-    # height down along the tilted z axis.
-    r = rot_y(tilt)
-    tip_centre = tip_site - r @ np.array([tip_len / 2 - 0.002, 0.0, tip_h / 2])
-    tip_size = np.array([tip_len, g.distal_size[1], tip_h])
+    tip_centre, tip_size = g.fingertip_box
     tip_collision = (
         f'    <collision><origin xyz="{_xyz(tip_centre)}" rpy="0 {_f(tilt)} 0"/>'
         f'<geometry><box size="{_xyz(tip_size)}"/></geometry></collision>\n'
@@ -421,7 +451,7 @@ def build_urdf(geom: ReflexGeometry | None = None) -> str:
                 limits=(0.0, g.distal_limit),
             )
         )
-        for s in range(SENSORS_PER_FINGER):
+        for s in range(SENSORS_PER_FINGER if sensor_links else 0):
             sid = f * SENSORS_PER_FINGER + s
             if s < N_PROXIMAL_SENSORS:
                 parent, xyz, rpy = PROXIMAL_LINKS[f], prox_sites[s], (0.0, 0.0, 0.0)
@@ -439,7 +469,7 @@ def build_urdf(geom: ReflexGeometry | None = None) -> str:
                     rpy,
                 )
             )
-    for i, xyz in enumerate(palm_site_positions(g)):
+    for i, xyz in enumerate(palm_site_positions(g) if sensor_links else []):
         sid = N_FINGERS * SENSORS_PER_FINGER + i
         parts.append(_site_link(sensor_link_name(sid)))
         parts.append(
@@ -449,11 +479,13 @@ def build_urdf(geom: ReflexGeometry | None = None) -> str:
     return "".join(parts)
 
 
-def urdf_file(geom: ReflexGeometry | None = None, cache_dir: Path | None = None) -> Path:
+def urdf_file(
+    geom: ReflexGeometry | None = None, cache_dir: Path | None = None, sensor_links: bool = False
+) -> Path:
     """Write the URDF to a cache file named by its content hash (pybullet loads from files).
 
     Written atomically (temp file + rename), so concurrent worlds and processes are safe."""
-    text = build_urdf(geom)
+    text = build_urdf(geom, sensor_links)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
     root = cache_dir or Path(tempfile.gettempdir()) / f"activetouch-{os.getuid()}"
     root.mkdir(parents=True, exist_ok=True)

@@ -183,15 +183,12 @@ class SimWorld:
             info = pb.getJointInfo(self.hand, j, physicsClientId=c)
             by_joint[info[1].decode()] = j
             by_link[info[12].decode()] = j
-        from activetouch.sim.reflex_urdf import sensor_link_name
-
         site_link = np.empty(N_SENSORS, dtype=np.int64)
         for f in range(N_FINGERS):
             for s in range(SENSORS_PER_FINGER):
                 links = PROXIMAL_LINKS if s < N_PROXIMAL_SENSORS else DISTAL_LINKS
                 site_link[f * SENSORS_PER_FINGER + s] = by_link[links[f]]
         site_link[N_FINGERS * SENSORS_PER_FINGER :] = by_link[PAD_LINK]
-        assert all(sensor_link_name(i) in by_link for i in range(N_SENSORS))
         collision = [-1] + [
             j for j in by_link.values() if pb.getCollisionShapeData(self.hand, j, physicsClientId=c)
         ]

@@ -1,0 +1,196 @@
+"""`activetouch bench sim [--json FILE]`: speed of the PyBullet twin, headless, one core.
+
+Sections (each a function returning a dict of figures, run by `main` in `SECTIONS` order):
+- grasps: guarded enclosure grasps per second at random wrist poses around one object (a
+  primitive sphere by default, or a library object), palm towards its centre, random roll and
+  preshape (0 or 0.8). Reports the close alone and the whole cycle (open, preshape, move_wrist
+  with its collision check, close; unreachable poses included), contacts per grasp and
+  collision queries per grasp.
+Peak memory (resident set, getrusage) is reported for the whole run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from activetouch.config import SimConfig, load_config
+from activetouch.errors import UnreachableError
+from activetouch.interfaces import Pose
+from activetouch.planning.grid import look_at_quaternion
+from activetouch.sim.hand import SimHand
+from activetouch.sim.world import SimArm, SimWorld
+
+PRIMITIVES = {
+    "primitive:sphere": ("sphere", 0.06),
+    "primitive:cylinder": ("cylinder", (0.04, 0.2)),
+    "primitive:box": ("box", (0.07, 0.07, 0.2)),
+}
+PAD_HEIGHT = 0.0896  # palm pad above the hand frame origin
+
+
+def random_wrist_poses(
+    extents: np.ndarray, n: int, rng: np.random.Generator, max_gap_m: float = 0.05
+) -> list[Pose]:
+    """Poses on the upper hemisphere around an object with bounding box `extents`, palm
+    (hand +z) towards its centre, pad 0..max_gap_m beyond the bounding ellipsoid."""
+    ext = np.asarray(extents, dtype=np.float64)
+    out: list[Pose] = []
+    for _ in range(n):
+        el, az = rng.uniform(np.deg2rad(15), np.pi / 2), rng.uniform(0, 2 * np.pi)
+        d = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        surface = d / np.sqrt(np.sum((d / (ext / 2)) ** 2))
+        origin = surface + d * (PAD_HEIGHT + rng.uniform(0.0, max_gap_m))
+        out.append(Pose(origin, look_at_quaternion(-d, rng.uniform(-np.pi, np.pi))))
+    return out
+
+
+def _place(world: SimWorld, obj: str, data: str | None) -> str:
+    if obj in PRIMITIVES:
+        kind, size = PRIMITIVES[obj]
+        world.place_primitive(kind, size)
+        return obj
+    from activetouch.paths import data_dir, objects_dir
+    from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary
+
+    lib = ObjectLibrary(objects_dir(data_dir(data)))
+    if obj in BUILTIN_OBJECTS:
+        lib.ensure_builtins([obj])
+    world.place(lib.get(obj))
+    return obj
+
+
+def bench_grasps(
+    cfg: SimConfig,
+    obj: str = "primitive:sphere",
+    n: int = 300,
+    seed: int = 0,
+    data: str | None = None,
+) -> dict[str, Any]:
+    rng = np.random.default_rng(seed)
+    with SimWorld(cfg) as world:
+        arm, hand = SimArm(world), SimHand(world)
+        _place(world, obj, data)
+        assert world.object is not None
+        poses = random_wrist_poses(world.object.extents, n, rng)
+        preshapes = rng.choice([0.0, 0.8], size=n)
+        # Warm-up (first collision queries build Bullet's caches).
+        hand.open()
+        arm.move_wrist(Pose([0.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]))
+        hand.guarded_close()
+        close_s, contacts, queries, unreachable = 0.0, [], [], 0
+        t0 = time.perf_counter()
+        for pose, pre in zip(poses, preshapes, strict=True):
+            hand.open()
+            hand.preshape(float(pre))
+            try:
+                arm.move_wrist(pose)
+            except UnreachableError:
+                unreachable += 1
+                continue
+            tc = time.perf_counter()
+            g = hand.guarded_close()
+            close_s += time.perf_counter() - tc
+            contacts.append(g.n_contacts)
+            assert hand.last_close is not None
+            queries.append(hand.last_close.queries)
+        total_s = time.perf_counter() - t0
+    grasped = len(contacts)
+    c = np.asarray(contacts, dtype=np.int64)
+    return {
+        "object": obj,
+        "poses": n,
+        "grasped": grasped,
+        "unreachable": unreachable,
+        "close_per_s": grasped / close_s if close_s > 0 else 0.0,
+        "cycle_per_s": n / total_s,
+        "grasped_cycle_per_s": grasped / total_s,
+        "mean_contacts": float(c.mean()) if grasped else 0.0,
+        "grasps_with_3plus_contacts": float(np.mean(c >= 3)) if grasped else 0.0,
+        "mean_collision_queries": float(np.mean(queries)) if grasped else 0.0,
+    }
+
+
+# Sections of the benchmark: name -> function(args, cfg) -> figures. Others (e.g. training
+# collection timing) add themselves here.
+SECTIONS: dict[str, Callable[[argparse.Namespace, SimConfig], dict[str, Any]]] = {
+    "grasps": lambda a, cfg: bench_grasps(cfg, a.object, a.grasps, a.seed, a.data),
+}
+
+
+def peak_rss_mb() -> float:
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return kb / (1024.0 * 1024.0) if sys.platform == "darwin" else kb / 1024.0
+
+
+def _table(results: dict[str, Any]) -> Table:
+    table = Table(title="PyBullet twin (headless, one core)")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for section, figures in results.items():
+        if not isinstance(figures, dict):
+            table.add_row(
+                section, f"{figures:,.1f}" if isinstance(figures, float) else str(figures)
+            )
+            continue
+        for key, value in figures.items():
+            shown = f"{value:,.2f}" if isinstance(value, float) else str(value)
+            table.add_row(f"{section}.{key}", shown)
+    return table
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="activetouch bench sim",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--json", metavar="FILE", type=Path, default=None, help="also write figures")
+    p.add_argument("--grasps", type=int, default=300, help="random wrist poses to grasp at")
+    p.add_argument(
+        "--object",
+        default="primitive:sphere",
+        help=f"{', '.join(PRIMITIVES)} or a library object name (default primitive:sphere)",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--data", default=None, help="data directory (library objects)")
+    p.add_argument("--config", default=None, help="TOML config (its [sim] section is used)")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a setting, e.g. sim.substeps=4",
+    )
+    p.add_argument("--only", default=None, help=f"comma-separated sections of {list(SECTIONS)}")
+    args = p.parse_args(argv)
+    cfg = load_config(args.config, args.set).sim
+    wanted = list(SECTIONS) if args.only is None else [s.strip() for s in args.only.split(",")]
+    unknown = [s for s in wanted if s not in SECTIONS]
+    if unknown:
+        p.error(f"unknown sections {unknown}; known: {list(SECTIONS)}")
+    console = Console()
+    results: dict[str, Any] = {}
+    for name in wanted:
+        with console.status(f"sim bench: {name}..."):
+            results[name] = SECTIONS[name](args, cfg)
+    results["peak_rss_mb"] = peak_rss_mb()
+    console.print(_table(results))
+    if args.json is not None:
+        args.json.write_text(json.dumps(results, indent=2) + "\n")
+        console.print(f"wrote {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
