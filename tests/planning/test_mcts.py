@@ -294,8 +294,11 @@ def test_visited_poses_are_never_planned_and_paths_stop_when_poses_run_out() -> 
         simulations=500,
         rng=np.random.default_rng(0),
     )
-    assert 1 <= len(res.poses) <= 2
-    assert set(res.poses.tolist()) <= {3, 4}
+    assert len(res.poses) == 2
+    assert set(res.poses.tolist()) == {3, 4}
+    # Rollouts cannot continue either: the path's value counts exactly its two moves.
+    c = path_cost(model, kernel, 0, res.poses.tolist(), ROOT_COUNTS, C_ROOT, horizon=5)
+    assert res.value == pytest.approx(1.0 - c, abs=1e-12)
 
 
 def test_exhausted_root_says_so() -> None:
