@@ -76,7 +76,7 @@ def collect_object(
             records.append(GraspRecord(pid, pose, float(grid.preshapes[i]), grasp))
             stats.grasped += 1
             hand.open()
-        if len(records) >= batch or n == len(todo):
+        if n % batch == 0 or n == len(todo):  # skipped poses count too: they are progress
             flush()
         if on_grasp is not None:
             on_grasp(stats.already_done + n, len(grid))

@@ -33,9 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def format_progress(ev: Progress) -> str:
     top = "  ".join(f"{name} {p:.2f}" for name, p in ev.top)
     skipped = f"  ({ev.skipped} skipped)" if ev.skipped else ""
-    return (
-        f"move {ev.move:>2}  pose {ev.pose_id:>4}  contacts {ev.n_contacts}  |  {top}{skipped}"
-    )
+    return f"move {ev.move:>2}  pose {ev.pose_id:>4}  contacts {ev.n_contacts}  |  {top}{skipped}"
 
 
 def result_json(res: RecognitionResult, obj: str, policy: str, seed: int) -> dict:

@@ -1,0 +1,37 @@
+"""A small trained model on three builtin objects, shared by the service tests (built once)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from activetouch import paths
+from activetouch.config import Config, load_config
+from activetouch.model import load_model
+from activetouch.service.training import collect, fit_and_save
+from activetouch.sim.objects import ObjectLibrary
+
+SMALL_OBJECTS = ["cup", "sphere", "bottle"]
+
+
+def small_config() -> Config:
+    # A coarse grid keeps collection to a few seconds.
+    return load_config(None, ["grid.step_deg=40"])
+
+
+@pytest.fixture(scope="session")
+def trained_home(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("home")
+    cfg = small_config()
+    lib = ObjectLibrary(paths.objects_dir(root))
+    lib.ensure_builtins(SMALL_OBJECTS)
+    ds = paths.datasets_dir(root) / "twin"
+    collect(lib, ds, SMALL_OBJECTS, cfg, workers=1)
+    fit_and_save(ds, SMALL_OBJECTS, cfg, paths.models_dir(root) / "default")
+    return root
+
+
+@pytest.fixture(scope="session")
+def small_model(trained_home: Path):
+    return load_model(paths.models_dir(trained_home) / "default")
