@@ -197,7 +197,9 @@ class SimHand(Hand):
                     pressures[f * SENSORS_PER_FINGER : (f + 1) * SENSORS_PER_FINGER] > thr
                 )
                 d_prox, d_dist = depth[f]
-                if not fine[f] and (sensed or max(d_prox, d_dist) > 0.0):
+                # A held proximal link may rest on something: only moving links count here.
+                d_moving = d_dist if blocked[f] else max(d_prox, d_dist)
+                if not fine[f] and (sensed or d_moving > 0.0):
                     fine[f] = True  # re-run this step finely from where the finger was
                     continue
                 if not sensed and d_dist > cfg.stall_depth_m:
@@ -207,7 +209,9 @@ class SimHand(Hand):
                     if blocked[f]:
                         active[f], reasons[f] = False, STOP_STALL
                     else:
-                        blocked[f] = True  # hold the proximal where it was; distal wraps
+                        # Hold the proximal where it was; the distal wraps on, coarsely
+                        # until it meets something.
+                        blocked[f], fine[f] = True, False
                     continue
                 spool[f], prox[f], dist[f] = new_spool[f], new_prox[f], new_dist[f]
                 if sensed:

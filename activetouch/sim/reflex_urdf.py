@@ -22,6 +22,7 @@ carries them as massless fixed links so the two can be checked against each othe
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import tempfile
@@ -243,18 +244,39 @@ def palm_site_positions(geom: ReflexGeometry) -> np.ndarray:
     return np.column_stack([xy, np.full(len(xy), geom.palm_sensor_z)])
 
 
+@functools.lru_cache(maxsize=256)
+def _proximal_base(
+    geom: ReflexGeometry, finger: int, preshape: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation and origin of a finger's proximal joint frame at angle 0 (cached: the
+    preshape is fixed during a close)."""
+    t = finger_link_transforms(geom, finger, preshape, 0.0, 0.0)[0]
+    r, o = t[:3, :3].copy(), t[:3, 3].copy()
+    r.flags.writeable = o.flags.writeable = False
+    return r, o
+
+
+@functools.lru_cache(maxsize=16)
+def _site_offsets(geom: ReflexGeometry) -> tuple[np.ndarray, np.ndarray]:
+    prox, dist = finger_site_offsets(geom)
+    prox.flags.writeable = dist.flags.writeable = False
+    return prox, dist
+
+
 def finger_sensor_positions(
     geom: ReflexGeometry, finger: int, preshape: float, proximal: float, distal: float
 ) -> np.ndarray:
-    """(9, 3) hand-frame XYZ of finger `finger`'s sensor sites (0 nearest the palm ... 8 tip)."""
-    prox_sites, dist_sites = finger_site_offsets(geom)
-    t_prox, t_dist = finger_link_transforms(geom, finger, preshape, proximal, distal)
-    return np.concatenate(
-        [
-            prox_sites @ t_prox[:3, :3].T + t_prox[:3, 3],
-            dist_sites @ t_dist[:3, :3].T + t_dist[:3, 3],
-        ]
-    )
+    """(9, 3) hand-frame XYZ of finger `finger`'s sensor sites (0 nearest the palm ... 8 tip).
+    Same frames as `finger_link_transforms`, composed with fewer operations (hot path)."""
+    prox_sites, dist_sites = _site_offsets(geom)
+    r0, o = _proximal_base(geom, finger, float(preshape))
+    r_prox = r0 @ rot_y(-proximal)
+    r_dist = r_prox @ rot_y(-distal)
+    o_dist = o + r_prox @ np.asarray(geom.distal_on_proximal)
+    out = np.empty((SENSORS_PER_FINGER, 3))
+    out[:N_PROXIMAL_SENSORS] = prox_sites @ r_prox.T + o
+    out[N_PROXIMAL_SENSORS:] = dist_sites @ r_dist.T + o_dist
+    return out
 
 
 def sensor_positions(

@@ -155,10 +155,12 @@ class SimWorld:
     # -- lifetime -------------------------------------------------------------------------
 
     def close(self) -> None:
-        if self.client is not None:
-            with contextlib.suppress(pb.error):  # already gone
-                pb.disconnect(physicsClientId=self.client)
+        """Disconnect the client (idempotent)."""
+        client = getattr(self, "client", None)
+        if client is not None:
             self.client = None
+            with contextlib.suppress(pb.error):  # already gone
+                pb.disconnect(physicsClientId=client)
 
     def __enter__(self) -> SimWorld:
         return self
@@ -167,7 +169,9 @@ class SimWorld:
         self.close()
 
     def __del__(self) -> None:
-        self.close()
+        # A forgotten world still frees its client; at interpreter exit pybullet may be gone.
+        with contextlib.suppress(Exception):
+            self.close()
 
     @property
     def cid(self) -> int:
