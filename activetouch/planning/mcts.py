@@ -183,6 +183,8 @@ def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
             z = min(max(z, -_Z_CLIP), _Z_CLIP)
             out[row_class[m]] += 1.0 / (1.0 + np.exp(z))
     else:
+        if not 0.0 < S[M + 1] < np.inf:  # squares under/overflowed: kernel_proba rescales
+            return _proba_full(kern, hist)
         dmin = np.full(n_classes, np.inf)
         norm = np.sqrt(S[M + 1])
         for m in range(M):

@@ -486,7 +486,8 @@ def test_incremental_scores_equal_kernel_proba(kind: int, synth) -> None:
     kern = mcts.kernel_tuple(kernel)
     out_ptr = np.array([0, 1, 4, 7], dtype=np.int64)
     out_bin = np.array([3, 0, 0, 39, 5, 6, 7], dtype=np.int64)
-    for start in (np.zeros(D), rng.integers(0, 4, D).astype(float)):
+    # Empty, counts, and tiny values whose squares underflow (kernel_proba rescales those).
+    for start in (np.zeros(D), rng.integers(0, 4, D).astype(float), rng.random(D) * 1e-170):
         h = start.copy()
         S = np.empty(8)
         mcts._scores_init(kern, h, S)
@@ -498,4 +499,4 @@ def test_incremental_scores_equal_kernel_proba(kind: int, synth) -> None:
             np.testing.assert_allclose(p_inc, p_ref, rtol=0, atol=1e-9)
             mcts._scores_add(kern, out_ptr, out_bin, int(o), h, S)
         if kind != KIND_NN_INTERSECTION:
-            assert S[6] == h.sum() and S[7] == pytest.approx(h @ h)
+            assert S[6] == pytest.approx(h.sum()) and S[7] == pytest.approx(h @ h)
