@@ -754,10 +754,15 @@ def model_tuple(model: ObservationModel) -> tuple:
 
 def unvisited_targets(model: ObservationModel, pose: int, visited: np.ndarray) -> np.ndarray:
     """Edge ids out of `pose` whose target is neither `pose` nor in `visited`."""
+    visited = np.asarray(visited, dtype=np.int64).reshape(-1)
+    if not 0 <= pose < model.n_poses:
+        raise PlanningError(f"pose id {pose} outside the model's {model.n_poses} poses")
+    if visited.size and (visited.min() < 0 or visited.max() >= model.n_poses):
+        raise PlanningError(f"visited pose ids must lie in [0, {model.n_poses})")
     lo, hi = int(model.edge_ptr[pose]), int(model.edge_ptr[pose + 1])
     targets = model.edge_target[lo:hi]
     bad = np.zeros(model.n_poses, dtype=bool)
-    bad[np.asarray(visited, dtype=np.int64)] = True
+    bad[visited] = True
     bad[pose] = True
     return lo + np.flatnonzero(~bad[targets])
 
