@@ -65,7 +65,7 @@ def run(seed: int = 0, quick: bool = False) -> dict[str, Any]:
     ]
     spec = HistogramSpec.fit(np.vstack([t for obj in train for t in obj]), bins=10)
     H, y = partial_histograms(train, spec, 50 if quick else 150, 1, 10, rng)
-    min_s = 0.02 if quick else 0.1
+    min_s, rounds = (0.01, 3) if quick else (0.1, 7)
 
     grasp27 = synthetic_grasp("sphere_large", rng, 27, reach_m=None)
     tri27 = triangle_params(grasp27)
@@ -83,7 +83,7 @@ def run(seed: int = 0, quick: bool = False) -> dict[str, Any]:
     best: dict[str, float] = results["us_best"]
 
     def record(key: str, fn: Callable[[], object], per: int = 1) -> None:
-        median, fastest = time_call(fn, min_s)
+        median, fastest = time_call(fn, min_s, rounds)
         us[key] = 1e6 * median / per
         best[key] = 1e6 * fastest / per
 

@@ -129,6 +129,12 @@ def kernel_proba(
         dmin = np.full(n_classes, np.inf)
         if kind == 1:
             norm = np.sqrt(sq)
+            if not (0.0 < sq < np.inf):
+                # Squares of tiny (or huge) counts under/overflow: measure h / sum(h) instead.
+                sq = 0.0
+                for i in range(D):
+                    sq += (h[i] / total) ** 2
+                norm = total * np.sqrt(sq)
             for m in range(M):
                 s = 0.0
                 for i in range(D):
@@ -550,7 +556,9 @@ class NearestNeighbourClassifier(_KernelClassifier):
         totals = H.sum(axis=1)
         ok = totals > 0
         if self.kind == KIND_NN_INNER:
-            norms = np.linalg.norm(H, axis=1)
+            safe = np.where(ok, totals, 1.0)[:, None]
+            # Norm of h / sum(h), times sum(h): squares of tiny counts cannot underflow.
+            norms = np.linalg.norm(H / safe, axis=1) * safe[:, 0]
             sim = np.abs(H @ rows.T) / np.where(ok, norms, 1.0)[:, None]
             return 1.0 - np.minimum(sim, 1.0)
         H1 = H / np.where(ok, totals, 1.0)[:, None]
@@ -617,9 +625,16 @@ class NearestNeighbourClassifier(_KernelClassifier):
         k = self.kernel()
         h = _as_histogram(h, k.W.shape[1])
         if k.kind == KIND_NN_INNER:
-            norm = math.sqrt(h.dot(h))
-            if not norm > 0:
-                return self._uniform.copy()
+            sq = h.dot(h)
+            if 0.0 < sq < math.inf:
+                norm = math.sqrt(sq)
+            else:
+                total = h.sum()
+                if not total > 0:
+                    return self._uniform.copy()
+                # Squares of tiny (or huge) counts under/overflow: measure h / sum(h) instead.
+                h1 = h / total
+                norm = total * math.sqrt(h1.dot(h1))
             d = 1.0 - np.minimum(np.abs(k.W.dot(h)) * (1.0 / norm), 1.0)
         else:
             total = h.sum()

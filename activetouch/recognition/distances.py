@@ -36,6 +36,8 @@ def _one_many(h: np.ndarray, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def inner_product_distance(h1: np.ndarray, h2: np.ndarray) -> float:
     a, b = _pair(h1, h2)
+    # Scale-free, so normalise first: squares of tiny counts would underflow.
+    a, b = l1_normalise(a), l1_normalise(b)
     denom = float(np.linalg.norm(a) * np.linalg.norm(b))
     if denom == 0.0:
         return 1.0
@@ -55,6 +57,7 @@ def l2_distance(h1: np.ndarray, h2: np.ndarray) -> float:
 
 def inner_product_distance_many(h: np.ndarray, H: np.ndarray) -> np.ndarray:
     a, B = _one_many(h, H)
+    a, B = l1_normalise(a), l1_normalise_rows(B)
     denom = np.linalg.norm(a) * np.linalg.norm(B, axis=1)
     num = np.abs(B @ a)
     sim = np.divide(num, denom, out=np.zeros_like(num), where=denom > 0)

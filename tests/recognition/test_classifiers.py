@@ -76,6 +76,7 @@ def test_intersection_better_than_chance(data: dict, fitted: dict) -> None:
     assert (P.argmax(axis=1) == data["test_y"]).mean() >= 0.9
 
 
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
 @pytest.mark.parametrize("name", CLASSIFIER_NAMES)
 def test_probabilities_and_kernel(data: dict, fitted: dict, name: str) -> None:
     clf = fitted[name]
@@ -85,7 +86,9 @@ def test_probabilities_and_kernel(data: dict, fitted: dict, name: str) -> None:
     assert k.kind == {"svm": 0, "nn_inner": 1, "nn_intersection": 2}[name]
     zero = np.zeros(D)
     dense = np.random.default_rng(5).random(D)
-    rows = [zero, dense, *data["test_H"][::7], data["H"][0]]
+    # Tiny and huge entries: their squares under/overflow, the probabilities must not change.
+    extreme = [1e-170 * data["test_H"][0], 1e170 * data["test_H"][0]]
+    rows = [zero, dense, *data["test_H"][::7], data["H"][0], *extreme]
     P = clf.proba_many(np.array(rows))
     np.testing.assert_allclose(P.sum(axis=1), 1.0, atol=1e-12)
     assert (P >= 0).all()
@@ -98,6 +101,8 @@ def test_probabilities_and_kernel(data: dict, fitted: dict, name: str) -> None:
         np.testing.assert_allclose(k.proba(h), p, atol=1e-9, rtol=0)
         # Raw counts and normalised histograms are the same evidence.
         np.testing.assert_allclose(clf.proba(5.0 * h), p, atol=1e-12)
+    for h in extreme:
+        np.testing.assert_allclose(clf.proba(h), clf.proba(data["test_H"][0]), atol=1e-12)
 
 
 @settings(max_examples=40, deadline=None)
