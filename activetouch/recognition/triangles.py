@@ -7,7 +7,7 @@ they are relative measures the result does not depend on the pose of the hand or
 on the order of the contacts (only the row order of the result does).
 
 Degenerate triangles are dropped: a side shorter than ``min_side_m`` (two contacts at the same
-place) or an angle smaller than ``min_angle_deg`` (three contacts on a line).
+place; a zero side always) or an angle smaller than ``min_angle_deg`` (three contacts on a line).
 """
 
 from __future__ import annotations
