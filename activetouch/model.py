@@ -45,6 +45,7 @@ MODEL_FORMAT_VERSION = 1
 MODEL_JSON = "model.json"
 CLASSIFIER_FILE = "classifier.npz"
 OBSERVATION_FILE = "observation.npz"
+HISTOGRAMS_FILE = "class_histograms.npz"
 
 
 @dataclass
@@ -58,6 +59,9 @@ class TrainedModel:
     format_version: int = MODEL_FORMAT_VERSION
     created: str = ""
     meta: dict[str, Any] = field(default_factory=dict)  # e.g. grasps per object, dataset path
+    # (K, n_bins) L1-normalised histogram of all training grasps per class: the "true"
+    # histograms the paper measures test-time distances against.
+    class_histograms: np.ndarray | None = None
 
     @property
     def n_classes(self) -> int:
@@ -88,6 +92,8 @@ class TrainedModel:
             CLASSIFIER_FILE: npz_bytes(self.classifier.to_arrays()),
             OBSERVATION_FILE: npz_bytes(self.observation.arrays()),
         }
+        if self.class_histograms is not None:
+            files[HISTOGRAMS_FILE] = npz_bytes({"H": np.asarray(self.class_histograms)})
         doc = {
             "format": MODEL_FORMAT_NAME,
             "format_version": MODEL_FORMAT_VERSION,
@@ -107,6 +113,11 @@ class TrainedModel:
                 "scalars": self.observation.scalars(),
             },
         }
+        if self.class_histograms is not None:
+            doc["class_histograms"] = {
+                "file": HISTOGRAMS_FILE,
+                "sha256": hashlib.sha256(files[HISTOGRAMS_FILE]).hexdigest(),
+            }
         try:
             files[MODEL_JSON] = (json.dumps(doc, indent=2, sort_keys=True) + "\n").encode()
         except (TypeError, ValueError) as e:
@@ -194,6 +205,7 @@ def train_model(dataset: Dataset, cfg: Config, objects: list[str] | None = None)
         rng=np.random.default_rng(rc.seed),
     )
     classifier = make_classifier(rc.classifier, random_state=rc.seed).fit(H, y)
+    class_histograms = np.stack([spec.histogram(np.concatenate(ts)) for _, _, ts in per_object])
     observation = build_observation_model(per_object, spec, cfg.observation)
     return TrainedModel(
         spec=spec,
@@ -209,6 +221,7 @@ def train_model(dataset: Dataset, cfg: Config, objects: list[str] | None = None)
             "grasps": {n: len(p) for n, p, _ in per_object},
             "triangles": {n: int(sum(len(t) for t in ts)) for n, _, ts in per_object},
         },
+        class_histograms=class_histograms,
     )
 
 
@@ -265,7 +278,12 @@ def load_model(path: str | os.PathLike) -> TrainedModel:
     observation = ObservationModel.from_parts(
         scalars, _read_checked(root, obs_entry, "observation")
     )
+    class_histograms = None
+    if "class_histograms" in doc:
+        class_histograms = _read_checked(root, doc["class_histograms"], "class histograms").get("H")
     problems = []
+    if class_histograms is not None and class_histograms.shape != (len(class_names), spec.n_bins):
+        problems.append(f"class histograms of shape {class_histograms.shape}")
     if classifier.n_classes != len(class_names):
         problems.append(f"classifier has {classifier.n_classes} classes")
     if observation.class_names != class_names:
@@ -289,4 +307,5 @@ def load_model(path: str | os.PathLike) -> TrainedModel:
         format_version=int(version),
         created=str(doc.get("created", "")),
         meta=doc.get("meta", {}) if isinstance(doc.get("meta", {}), dict) else {},
+        class_histograms=class_histograms,
     )

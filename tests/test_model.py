@@ -65,6 +65,10 @@ def test_train_save_load_round_trip(
     H = rng.random((20, 1000)) * (rng.random((20, 1000)) < 0.05)
     np.testing.assert_array_equal(again.classifier.proba_many(H), model.classifier.proba_many(H))
     assert again.observation.scalars() == model.observation.scalars()
+    assert model.class_histograms is not None
+    assert model.class_histograms.shape == (3, 1000)
+    np.testing.assert_allclose(model.class_histograms.sum(axis=1), 1.0)
+    np.testing.assert_array_equal(again.class_histograms, model.class_histograms)
     for k, v in model.observation.arrays().items():
         np.testing.assert_array_equal(getattr(again.observation, k), v)
         assert getattr(again.observation, k).dtype == v.dtype
