@@ -655,6 +655,7 @@ class _Built:
     verts: np.ndarray
     faces: np.ndarray
     parts: list[tuple[np.ndarray, np.ndarray]]  # convex (verts, faces)
+    axis_xy: np.ndarray | None = None  # where a builtin's lathe axis is in the object frame
 
 
 def shape_to_meshes(shape: Shape) -> _Built:
@@ -665,7 +666,7 @@ def shape_to_meshes(shape: Shape) -> _Built:
     lo, hi = verts.min(axis=0), verts.max(axis=0)
     centre = (lo + hi) / 2.0
     parts = [convex_hull_mesh(h - centre) for h in shape.hulls]
-    return _Built(verts - centre, faces, parts)
+    return _Built(verts - centre, faces, parts, axis_xy=-centre[:2])
 
 
 def _write_object_dir(d: Path, built: _Built, meta: dict) -> None:
@@ -821,7 +822,12 @@ def decompose(verts: np.ndarray, faces: np.ndarray, method: str = "coacd") -> li
 
 
 def _decompose_coacd(verts: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
-    import coacd
+    try:
+        import coacd
+    except ImportError as e:
+        raise ActiveTouchError(
+            "coacd is not installed (pip install coacd), or use the vhacd decomposition"
+        ) from e
 
     coacd.set_log_level("error")
     # Tuned for speed (a few seconds for a mug-like mesh); ~1 mm surface error at 0.1 m.
@@ -1062,29 +1068,72 @@ def _build_builtin(name: str, d: Path) -> None:
         "rgba": list(COLOURS[name]),
         # A builtin's source is its generated surface: the hash pins the geometry.
         "sha256": _sha256(d / "visual.obj"),
+        # The body's axis of revolution (off the bbox centre when there is a handle/spout).
+        "axis_xy": [round(float(a), 6) for a in built.axis_xy],
     }
     _write_object_dir(d, built, meta)
 
 
+def fill_holes(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Close each boundary loop of a consistently wound mesh with a fan around its centroid.
+
+    Returns (verts, faces, number of holes closed); the input unchanged if the open edges do
+    not form loops (then the caller sees the mesh is still open)."""
+    f = np.asarray(faces, dtype=np.int64)
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    have = {(int(a), int(b)) for a, b in directed}
+    boundary = [(a, b) for a, b in map(tuple, directed.tolist()) if (b, a) not in have]
+    nxt: dict[int, list[int]] = {}
+    for a, b in sorted(boundary):
+        nxt.setdefault(a, []).append(b)
+    v = [np.asarray(verts, dtype=np.float64)]
+    new_faces = [f]
+    n_v = len(verts)
+    holes = 0
+    # Open edges of a consistently wound surface form cycles (in = out at every vertex, also
+    # where two holes touch), so walking from any open edge comes back to its start.
+    while nxt:
+        start = min(nxt)
+        loop = [start]
+        while True:
+            outs = nxt.get(loop[-1])
+            if not outs:
+                return verts, faces, 0
+            b = outs.pop(0)
+            if not outs:
+                del nxt[loop[-1]]
+            if b == start:
+                break
+            loop.append(b)
+        ring = np.asarray(loop)
+        v.append(v[0][ring].mean(axis=0, keepdims=True))
+        # Each open edge a->b belongs to a face; the patch face runs b->a to match it.
+        new_faces.append(np.stack([np.roll(ring, -1), ring, np.full(len(ring), n_v)], axis=1))
+        n_v += 1
+        holes += 1
+    return np.vstack(v), np.vstack(new_faces), holes
+
+
+def _simplified_for_decomposition(verts: np.ndarray, faces: np.ndarray):
+    """Large meshes slow the decomposition down: merge edges shorter than 0.5 mm first."""
+    if len(faces) <= 20000:
+        return verts, faces
+    try:
+        m = _mesh_manifold(verts, faces).simplify(5e-4)
+    except ValueError:
+        return verts, faces
+    mesh = m.to_mesh64()
+    return np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts, dtype=np.int64)
+
+
 def _import_meshes(mesh, src: Path, method: str) -> tuple[_Built, dict]:
+    import trimesh
+
     lo, hi = mesh.bounds
     ext = hi - lo
     if float(ext.min()) < 1e-6:
         raise DataError(
             f"{src}: the mesh is flat (extents {np.round(ext, 6).tolist()} m): zero volume"
-        )
-    watertight = bool(mesh.is_watertight)
-    if watertight:
-        if mesh.volume < 0:
-            mesh.invert()
-        volume = float(mesh.volume)
-        if volume < 1e-12:
-            raise DataError(f"{src}: the mesh encloses zero volume")
-    else:
-        volume = float(mesh.convex_hull.volume)
-        warnings.warn(
-            f"{src}: mesh is not watertight; its convex decomposition may be approximate",
-            stacklevel=3,
         )
     if not (PLAUSIBLE_SIZE_M[0] <= float(ext.max()) <= PLAUSIBLE_SIZE_M[1]):
         warnings.warn(
@@ -1095,17 +1144,45 @@ def _import_meshes(mesh, src: Path, method: str) -> tuple[_Built, dict]:
     centre = (lo + hi) / 2.0
     verts = np.asarray(mesh.vertices, dtype=np.float64) - centre
     faces = np.asarray(mesh.faces, dtype=np.int64)
+    watertight = bool(mesh.is_watertight)
+    solid, holes = mesh, 0
+    if not watertight:
+        fv, ff, holes = fill_holes(verts, faces)
+        solid = trimesh.Trimesh(fv, ff, process=False)
+        if holes and solid.is_watertight and solid.is_winding_consistent:
+            warnings.warn(
+                f"{src}: mesh is not watertight; closed {holes} hole(s) for its collision shape",
+                stacklevel=3,
+            )
+        else:
+            solid = None
+            warnings.warn(
+                f"{src}: mesh is not watertight and its holes could not be closed; "
+                "its collision shape is its convex hull (repair the mesh for a faithful one)",
+                stacklevel=3,
+            )
     hull_vol = float(mesh.convex_hull.volume)
-    if watertight and hull_vol <= volume * 1.02:
-        clouds, used = [verts], "convex"
+    if solid is None:
+        volume = hull_vol
+        clouds, used = [verts], "convex-hull"
     else:
-        clouds, used = decompose(verts, faces, method), method
-        if not clouds:
-            raise DataError(f"{src}: convex decomposition ({method}) produced no parts")
+        volume = abs(float(solid.volume))
+        if volume < 1e-12:
+            raise DataError(f"{src}: the mesh encloses zero volume")
+        if hull_vol <= volume * 1.02:
+            clouds, used = [verts], "convex"
+        else:
+            sv, sf = np.asarray(solid.vertices), np.asarray(solid.faces, dtype=np.int64)
+            if float(solid.volume) < 0:
+                sf = sf[:, ::-1]
+            clouds, used = decompose(*_simplified_for_decomposition(sv, sf), method), method
+            if not clouds:
+                raise DataError(f"{src}: convex decomposition ({method}) produced no parts")
     parts = [convex_hull_mesh(c) for c in clouds]
     info = {
         "decomposition": used,
         "watertight": watertight,
+        "holes_closed": holes,
         "volume": volume,
     }
     return _Built(verts, faces, parts), info
