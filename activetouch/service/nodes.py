@@ -74,6 +74,7 @@ from activetouch.service.messages import (
     trajectory_from_msg,
     trajectory_to_msg,
 )
+from activetouch.service.zenoh_session import close_at_exit
 
 log = logging.getLogger(__name__)
 
@@ -85,6 +86,18 @@ _GONE = object()  # the node's liveliness token dropped
 _GRACE_S = 0.5  # beyond Zenoh's own timeout, before the client gives up regardless
 
 M = TypeVar("M", bound=Message)
+
+
+def _direct(fn: Callable[[Any], Any], drop: Callable[[], Any] | None = None) -> Any:
+    """A Zenoh callback run on Zenoh's own thread (``indirect=False``).
+
+    Ours only enqueue or store, so this is safe and cheap. The default (indirect) mode starts
+    a non-daemon Python thread per declared callback that lives until it is undeclared: a
+    session left open then hangs interpreter exit (threads are joined before atexit runs)."""
+    try:
+        return zenoh.handlers.Callback(fn, drop, indirect=False)
+    except TypeError:  # a zenoh without the (unstable) `indirect` flag
+        return zenoh.handlers.Callback(fn, drop)
 
 
 @dataclass
@@ -167,10 +180,11 @@ class _ServedNode:
             for name, op in self._ops.items():
                 q = self._fast_queue if op.fast else self._queue
                 self._queryables.append(
-                    self._session.declare_queryable(op.key, self._enqueuer(name, q))
+                    self._session.declare_queryable(op.key, _direct(self._enqueuer(name, q)))
                 )
             self._worker.start()
             self._fast_worker.start()
+            close_at_exit(self)  # stop the workers before the interpreter finalises
             # Last: a client that sees the token can use every queryable.
             self._token = self._session.liveliness().declare_token(self.keys.alive(self.node_name))
         except Exception:
@@ -431,9 +445,12 @@ class _RemoteNode:
 
     def _watch(self) -> None:
         if self._live_sub is None:
-            self._live_sub = self._session.liveliness().declare_subscriber(
-                self.alive_key, self._on_liveliness, history=True
-            )
+            try:
+                self._live_sub = self._session.liveliness().declare_subscriber(
+                    self.alive_key, _direct(self._on_liveliness), history=True
+                )
+            except Exception as e:  # e.g. the session is closed
+                raise NodeUnavailableError(f"cannot watch {self.alive_key}: {e}") from None
 
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
         alive = sample.kind == zenoh.SampleKind.PUT
@@ -483,7 +500,7 @@ class _RemoteNode:
             try:
                 self._session.get(
                     f"{key}?{TIMEOUT_PARAM}={timeout:g}",
-                    zenoh.handlers.Callback(q.put, lambda: q.put(_DONE)),
+                    _direct(q.put, lambda: q.put(_DONE)),
                     payload=encode(request),
                     encoding=JSON,
                     timeout=timeout,
@@ -641,7 +658,7 @@ class Latest(Generic[M]):
         self.count = 0
         self.invalid = 0
         self.last_error: str | None = None
-        self._sub: Any = session.declare_subscriber(key, self._on_sample)
+        self._sub: Any = session.declare_subscriber(key, _direct(self._on_sample))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         try:
@@ -674,6 +691,55 @@ class Latest(Generic[M]):
                 raise NodeUnavailableError(f"nothing published on {self.key} within {timeout:g} s")
             assert self._msg is not None
             return self._msg
+
+    def close(self) -> None:
+        sub, self._sub = self._sub, None
+        if sub is not None:
+            try:
+                sub.undeclare()
+            except Exception:
+                log.debug("undeclare failed", exc_info=True)
+
+
+class AliveNodes:
+    """Which nodes of a robot are alive, from their liveliness tokens (for status reports)."""
+
+    def __init__(self, session: zenoh.Session, robot: str) -> None:
+        self.keys = Keys(robot)
+        self._cv = threading.Condition()
+        self._state: dict[str, bool] = {}
+        self._changed: dict[str, float] = {}
+        self._sub: Any = session.liveliness().declare_subscriber(
+            self.keys.alive_all, _direct(self._on_sample), history=True
+        )
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        node = Keys.node_of_alive_key(str(sample.key_expr))
+        with self._cv:
+            self._state[node] = sample.kind == zenoh.SampleKind.PUT
+            self._changed[node] = time.monotonic()
+            self._cv.notify_all()
+
+    def snapshot(self) -> dict[str, bool]:
+        """{node: alive} for every node seen so far (a dropped node stays, as False)."""
+        with self._cv:
+            return dict(self._state)
+
+    def since(self, node: str) -> float | None:
+        """Seconds since `node`'s token last appeared or dropped, or None if never seen."""
+        t = self._changed.get(node)
+        return None if t is None else time.monotonic() - t
+
+    def wait_for(self, node: str, timeout: float, alive: bool = True) -> None:
+        """Wait until `node` is alive (or, with alive=False, gone); NodeUnavailableError."""
+        with self._cv:
+            ok = self._cv.wait_for(lambda: self._state.get(node, False) == alive, timeout=timeout)
+        if not ok:
+            state = "appear" if alive else "drop"
+            raise NodeUnavailableError(
+                f"the {node} node's liveliness token {self.keys.alive(node)} did not {state} "
+                f"within {timeout:g} s"
+            )
 
     def close(self) -> None:
         sub, self._sub = self._sub, None

@@ -13,10 +13,13 @@ Open sessions after any fork(): Zenoh's runtime does not survive it.
 
 from __future__ import annotations
 
+import atexit
 import json
 import logging
 import re
 import socket
+import threading
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -116,6 +119,34 @@ def make_config(settings: ZenohSettings) -> zenoh.Config:
     return conf
 
 
+_exit_lock = threading.Lock()
+_exit_refs: list[weakref.ref] = []
+
+
+def close_at_exit(obj: Any) -> None:
+    """Close `obj` (weakly held) at interpreter exit if it is still open then.
+
+    Objects are closed last-registered first (nodes before the session they use). Why: a
+    daemon thread still calling into Zenoh while the interpreter finalises aborts the process
+    ("FATAL: exception not rethrown"), so worker threads must be stopped before that."""
+    with _exit_lock:
+        _exit_refs[:] = [r for r in _exit_refs if r() is not None]
+        _exit_refs.append(weakref.ref(obj))
+
+
+@atexit.register
+def _close_leftovers() -> None:
+    with _exit_lock:
+        objs = [r() for r in reversed(_exit_refs)]
+        _exit_refs.clear()
+    for obj in objs:
+        if obj is not None:
+            try:
+                obj.close()
+            except Exception:
+                log.debug("closing %r at exit failed", obj, exc_info=True)
+
+
 class ZenohSession:
     """An open Zenoh session plus the objects to close before it (LIFO)."""
 
@@ -131,6 +162,7 @@ class ZenohSession:
                 f"cannot open a Zenoh session (listen={list(self.settings.listen)}, "
                 f"connect={list(self.settings.connect)}): {e}"
             ) from None
+        close_at_exit(self)
 
     @property
     def session(self) -> zenoh.Session:

@@ -36,7 +36,14 @@ from activetouch.service.messages import (
     decode,
     encode,
 )
-from activetouch.service.nodes import ArmNode, HandNode, Latest, RemoteArm, RemoteHand
+from activetouch.service.nodes import (
+    AliveNodes,
+    ArmNode,
+    HandNode,
+    Latest,
+    RemoteArm,
+    RemoteHand,
+)
 from activetouch.service.zenoh_session import (
     ZenohSession,
     ZenohSettings,
@@ -270,7 +277,9 @@ def test_state_is_published(hand_node: HandNode, arm_node: ArmNode, client_sessi
     assert hs.invalid == 0 and js.invalid == 0
 
 
-def test_malformed_requests_get_error_replies(hand_node: HandNode, client_session) -> None:
+def test_malformed_requests_get_error_replies(
+    hand_node: HandNode, remote_hand: RemoteHand, client_session
+) -> None:
     session = client_session.session
     key = Keys(ROBOT).hand_preshape
 
@@ -372,7 +381,9 @@ def test_stop_interrupts_execute(remote_arm: RemoteArm, arm: FakeArm, client_ses
     assert isinstance(err, DataError) and "interrupted" in str(err)
 
 
-def test_expired_requests_are_not_executed(hand: FakeHand, hand_node: HandNode, client_session):
+def test_expired_requests_are_not_executed(
+    hand: FakeHand, hand_node: HandNode, remote_hand: RemoteHand, client_session
+) -> None:
     hand.close_delay = 0.6
     session = client_session.session
     keys = Keys(ROBOT)
@@ -396,8 +407,100 @@ def test_message_error_from_bad_reply(node_session: ZenohSession, client_session
     def answer(query) -> None:
         query.reply(keys.hand_state, b'{"v": 1, "ok": true, "result": {"v": 1}}')
 
-    q = node_session.closing(node_session.session.declare_queryable(keys.hand_state, answer))
-    assert q is not None
+    s = node_session.session
+    node_session.closing(s.declare_queryable(keys.hand_state, answer))
+    node_session.closing(s.liveliness().declare_token(keys.alive("hand")))
     rh = client_session.closing(RemoteHand(client_session.session, "foreign", timeout=2.0))
+    rh.connect()  # the token is declared after the queryable: once seen, the queryable is known
     with pytest.raises(MessageError, match=r"result\.pressures"):
         rh.state()
+
+
+def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_session) -> None:
+    """SimHand / SimArm behind nodes (one world, one lock) give the in-process grasp exactly."""
+    sim_world = pytest.importorskip("activetouch.sim.world")
+    sim_hand = pytest.importorskip("activetouch.sim.hand")
+    from scipy.spatial.transform import Rotation
+
+    # Hand +z along world +x, towards a 6 cm sphere; contacts on its surface.
+    side = Rotation.from_matrix(np.column_stack([[0, 1, 0], [0, 0, 1], [1, 0, 0]])).as_quat()
+    pose = Pose(np.array([-(0.06 + 0.0896 + 0.01), 0.0, 0.0]), side)
+    under_table = Pose(np.array([0.0, 0.0, -0.5]), side)
+
+    with sim_world.SimWorld() as local_world:
+        local_world.place_primitive("sphere", 0.06)
+        local_arm, local_hand = sim_world.SimArm(local_world), sim_hand.SimHand(local_world)
+        local_hand.open()
+        local_arm.move_wrist(pose)
+        want = local_hand.guarded_close()
+
+    with sim_world.SimWorld() as world:
+        world.place_primitive("sphere", 0.06)
+        lock = threading.Lock()  # one pybullet client behind both nodes
+        s = node_session.session
+        hand_node = HandNode(sim_hand.SimHand(world), s, ROBOT, state_hz=20.0, lock=lock)
+        arm_node = ArmNode(sim_world.SimArm(world), s, ROBOT, state_hz=20.0, lock=lock)
+        try:
+            c = client_session.session
+            with RemoteHand(c, ROBOT, timeout=5.0) as hand, RemoteArm(c, ROBOT, 5.0) as arm:
+                hand.open()
+                arm.move_wrist(pose)
+                got = hand.guarded_close()
+                with pytest.raises(UnreachableError):
+                    arm.move_wrist(under_table)
+                np.testing.assert_allclose(arm.joint_state().position[:3], pose.xyz, atol=1e-9)
+                assert hand.state().contact.sum() > 0
+        finally:
+            arm_node.close()
+            hand_node.close()
+    assert got.n_contacts >= 3
+    np.testing.assert_array_equal(got.sensor_ids, want.sensor_ids)
+    np.testing.assert_array_equal(got.xyz, want.xyz)
+    np.testing.assert_array_equal(got.pressures, want.pressures)
+    np.testing.assert_array_equal(got.finger_angles, want.finger_angles)
+
+
+EXIT_SCRIPT = """
+import sys
+sys.path.insert(0, {tests!r})
+from test_nodes import FakeArm, FakeHand
+from activetouch.service.nodes import ArmNode, HandNode, RemoteHand
+from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+ep = f"tcp/127.0.0.1:{{free_tcp_port()}}"
+node = ZenohSession(ZenohSettings(listen=(ep,)))
+client = ZenohSession(ZenohSettings.client(ep))
+HandNode(FakeHand(), node.session, "exitbot", state_hz=100)
+ArmNode(FakeArm(), node.session, "exitbot", state_hz=100)
+hand = RemoteHand(client.session, "exitbot")
+hand.connect()
+hand.guarded_close()
+print("leaving everything open", flush=True)
+"""
+
+
+def test_interpreter_exits_with_nodes_left_open() -> None:
+    """A script that forgets to close its sessions and nodes still exits, cleanly."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = EXIT_SCRIPT.format(tests=str(Path(__file__).parent))
+    proc = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "leaving everything open" in proc.stdout
+
+
+def test_alive_nodes_tracks_tokens(node_session: ZenohSession, client_session, hand, arm) -> None:
+    alive = client_session.closing(AliveNodes(client_session.session, ROBOT))
+    hand_node = HandNode(hand, node_session.session, ROBOT, state_hz=0)
+    arm_node = node_session.closing(ArmNode(arm, node_session.session, ROBOT, state_hz=0))
+    alive.wait_for("hand", timeout=5.0)
+    alive.wait_for("arm", timeout=5.0)
+    assert alive.snapshot() == {"hand": True, "arm": True}
+    hand_node.close()
+    alive.wait_for("hand", timeout=5.0, alive=False)
+    assert alive.snapshot() == {"hand": False, "arm": True}
+    assert alive.since("hand") is not None and alive.since("gripper") is None
+    assert arm_node.busy is None
