@@ -22,6 +22,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "activetouch.service.objects_command",
     "activetouch.service.train_command",
     "activetouch.service.recognize_command",
+    "activetouch.service.eval_command",
 )
 
 

@@ -66,8 +66,9 @@ def collect(
     """Collect every missing grasp of `names` into the dataset at `dataset_path`."""
     specs = {n: library.get(n) for n in names}  # unknown names fail here, before any work
     ds = Dataset.create_or_open(dataset_path, dataset_meta(cfg))
-    todo = [n for n in names if pending_poses(ds, n, training_grid(specs[n].extents, cfg.grid))]
-    stats = [CollectStats(name=n) for n in names if n not in todo]
+    grids = {n: training_grid(specs[n].extents, cfg.grid) for n in names}
+    todo = [n for n in names if pending_poses(ds, n, grids[n])]
+    stats = [CollectStats(name=n, already_done=len(grids[n])) for n in names if n not in todo]
     if not todo:
         return stats
     workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))

@@ -1,0 +1,110 @@
+"""`activetouch eval`: every object x policy x seed in the twin, then results.json + report.md."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from activetouch import paths
+from activetouch.config import load_config
+from activetouch.errors import ConfigError
+from activetouch.planning.policies import POLICY_NAMES
+from activetouch.service.evaluation import make_jobs, parse_seeds, run_all, summarise
+from activetouch.service.recognize import check_request, load_trained, model_path
+from activetouch.service.report import write_report
+from activetouch.service.train_command import parse_objects
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from activetouch.service.cli import add_common_options
+
+    p = sub.add_parser("eval", help="evaluate policies against the paper in the twin")
+    p.add_argument("--objects", default=None, help="comma-separated (default: the model's)")
+    p.add_argument("--policies", default="tree,greedy,random")
+    p.add_argument("--seeds", default="0-9", help="e.g. 0-9 or 0,3,5")
+    p.add_argument("--max-moves", type=int, default=None, help="grasp budget per run")
+    p.add_argument("--model", metavar="DIR", default=None, help="model directory")
+    p.add_argument("--out", metavar="DIR", required=True, help="report directory")
+    p.add_argument("--workers", type=int, default=None, help="parallel processes")
+    add_common_options(p)
+    p.set_defaults(func=run)
+
+
+def evaluate(
+    root: Path,
+    model_dir: Path,
+    objects: list[str] | None,
+    policies: list[str],
+    seeds: list[int],
+    max_moves: int | None,
+    out: Path,
+    cfg_path: str | None,
+    overrides: list[str],
+    workers: int | None,
+    console: Console,
+    command: str,
+) -> dict:
+    cfg = load_config(cfg_path, overrides)
+    budget = max_moves if max_moves is not None else cfg.session.max_moves
+    for p in policies:
+        check_request(p, budget)
+    model = load_trained(model_dir)
+    objects = objects or list(model.class_names)
+    library = paths.objects_dir(root)
+    jobs = make_jobs(model_dir, library, objects, policies, seeds, budget, cfg)
+    t0 = time.perf_counter()
+    with Progress(
+        TextColumn("recognitions"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+    ) as bar:
+        task = bar.add_task("eval", total=len(jobs))
+        runs = run_all(jobs, workers, lambda done, _: bar.update(task, completed=done))
+    summary = summarise(runs, budget)
+    summary["seconds"] = time.perf_counter() - t0
+    class_hist = {}
+    if model.class_histograms is not None:
+        class_hist = dict(zip(model.class_names, model.class_histograms, strict=True))
+    report = write_report(out, runs, summary, command, class_hist, model.spec.bins)
+    for p in policies:
+        s = summary["per_policy"][p]
+        console.print(
+            f"{p:>7}: {s['objects_final_correct_majority']}/{len(objects)} objects correct at the "
+            f"end, median moves to first correct {s['median_first_correct']}, "
+            f"mean {s['mean_first_correct_capped']:.2f}"
+        )
+    console.print(f"{len(jobs)} runs in {summary['seconds']:.0f} s; report: {report}")
+    return summary
+
+
+def run(args: argparse.Namespace) -> int:
+    policies = [p.strip() for p in args.policies.split(",") if p.strip()]
+    bad = [p for p in policies if p not in POLICY_NAMES]
+    if bad or not policies:
+        raise ConfigError(f"--policies: unknown {bad}; choose from {', '.join(POLICY_NAMES)}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    root = paths.data_dir(args.data)
+    evaluate(
+        root,
+        model_path(root, args.model),
+        parse_objects(args.objects) if args.objects else None,
+        policies,
+        parse_seeds(args.seeds),
+        args.max_moves,
+        Path(args.out),
+        args.config,
+        args.overrides,
+        args.workers,
+        Console(),
+        "python -m activetouch " + shlex.join(sys.argv[1:]),
+    )
+    return 0

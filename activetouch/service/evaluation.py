@@ -1,0 +1,241 @@
+"""Evaluation against the paper: every (object, policy, seed) recognised in the twin, in
+parallel processes, summarised as the paper's tables (moves until correct) and figures.
+
+Moves are counted in grasps, the first random grasp included; `None` means never."""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing as mp
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from activetouch.config import Config
+from activetouch.errors import ConfigError
+from activetouch.recognition.distances import inner_product_distance
+
+STABLE_RUN = 3  # "3-in-a-row correct", as in the paper's real-robot table
+
+
+def parse_seeds(text: str) -> list[int]:
+    """'0-9' or '0,3,5' or '2'."""
+    seeds: list[int] = []
+    try:
+        for part in text.split(","):
+            part = part.strip()
+            if "-" in part[1:]:
+                lo, hi = part.split("-", 1) if not part.startswith("-") else ("", part)
+                a, b = int(lo), int(hi)
+                if b < a:
+                    raise ValueError
+                seeds.extend(range(a, b + 1))
+            elif part:
+                seeds.append(int(part))
+    except ValueError:
+        raise ConfigError(f"--seeds: expected e.g. 0-9 or 0,3,5, got {text!r}") from None
+    if not seeds:
+        raise ConfigError("--seeds: give at least one seed")
+    return sorted(set(seeds))
+
+
+def first_correct(labels: list[str], truth: str) -> int | None:
+    for i, lab in enumerate(labels):
+        if lab == truth:
+            return i + 1
+    return None
+
+
+def first_stable_correct(labels: list[str], truth: str, run: int = STABLE_RUN) -> int | None:
+    """Moves until the label has been correct `run` grasps in a row (counted at the last)."""
+    streak = 0
+    for i, lab in enumerate(labels):
+        streak = streak + 1 if lab == truth else 0
+        if streak >= run:
+            return i + 1
+    return None
+
+
+@dataclass(frozen=True)
+class Job:
+    model_dir: str
+    library_root: str
+    object_name: str
+    policy: str
+    seed: int
+    max_moves: int
+    cfg: Config
+
+
+_MODEL_CACHE: dict[str, Any] = {}
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """One recognition; returns the run record (JSON-able) plus arrays for the figures."""
+    from activetouch.model import load_model
+    from activetouch.service.recognize import recognize_in_twin
+    from activetouch.sim.objects import ObjectLibrary
+
+    model = _MODEL_CACHE.get(job.model_dir)
+    if model is None:  # one load per worker process
+        model = _MODEL_CACHE[job.model_dir] = load_model(job.model_dir)
+    res = recognize_in_twin(
+        model,
+        ObjectLibrary(job.library_root),
+        job.object_name,
+        job.policy,
+        job.seed,
+        job.cfg,
+        max_moves=job.max_moves,
+    )
+    # Distance of the histogram after each grasp to the true class's training histogram.
+    distances: list[float | None] = []
+    counts = np.zeros(model.spec.n_bins)
+    truth_idx = (
+        model.class_names.index(job.object_name) if job.object_name in model.class_names else None
+    )
+    for xyz in res.contacts:
+        counts = counts + model.spec.counts(model.triangles(xyz))
+        ref = model.class_histograms
+        if truth_idx is None or ref is None:
+            distances.append(None)
+        else:
+            distances.append(float(inner_product_distance(counts, ref[truth_idx])))
+    return {
+        "object": job.object_name,
+        "policy": job.policy,
+        "seed": job.seed,
+        "labels": res.labels,
+        "moves_to_first_correct": first_correct(res.labels, job.object_name),
+        "moves_to_stable_correct": first_stable_correct(res.labels, job.object_name),
+        "final_correct": bool(res.labels) and res.labels[-1] == job.object_name,
+        "final_label": res.label,
+        "final_probability": res.probability,
+        "moves": res.moves,
+        "skipped": res.skipped,
+        "stop_reason": res.stop_reason,
+        "planning_s": res.planning_s,
+        "elapsed_s": res.elapsed_s,
+        "distance_to_true": distances,
+        "pose_ids": res.pose_ids,
+        # Not in results.json (bulky); used for figures.
+        "_contacts": [c.tolist() for c in res.contacts],
+        "_counts": counts.tolist(),
+    }
+
+
+def run_all(
+    jobs: list[Job], workers: int | None = None, progress: Callable[[int, int], None] | None = None
+) -> list[dict[str, Any]]:
+    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
+    out: list[dict[str, Any]] = []
+    if workers == 1:
+        for i, j in enumerate(jobs, 1):
+            out.append(run_job(j))
+            if progress:
+                progress(i, len(jobs))
+        return out
+    ctx = mp.get_context("spawn")  # PyBullet and numba state do not survive fork()
+    with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+        futures = [pool.submit(run_job, j) for j in jobs]
+        for i, _ in enumerate(cf.as_completed(futures), 1):
+            if progress:
+                progress(i, len(jobs))
+        out = [f.result() for f in futures]
+    return out
+
+
+def _median(values: list[int | None], budget: int) -> float | None:
+    """Median moves counting `never` as beyond the budget; None if most runs never got there."""
+    v = np.array([budget + 1 if x is None else x for x in values], dtype=float)
+    m = float(np.median(v)) if len(v) else float("nan")
+    return None if m > budget else m
+
+
+def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
+    objects = list(dict.fromkeys(r["object"] for r in runs))
+    policies = list(dict.fromkeys(r["policy"] for r in runs))
+    table: dict[str, dict[str, Any]] = {}
+    for o in objects:
+        table[o] = {}
+        for p in policies:
+            rs = [r for r in runs if r["object"] == o and r["policy"] == p]
+            fc = [r["moves_to_first_correct"] for r in rs]
+            sc = [r["moves_to_stable_correct"] for r in rs]
+            table[o][p] = {
+                "runs": len(rs),
+                "median_first_correct": _median(fc, max_moves),
+                "median_stable_correct": _median(sc, max_moves),
+                "ever_correct": sum(x is not None for x in fc),
+                "final_correct": sum(r["final_correct"] for r in rs),
+                "mean_moves": float(np.mean([r["moves"] for r in rs])) if rs else None,
+            }
+    per_policy: dict[str, Any] = {}
+    for p in policies:
+        rs = [r for r in runs if r["policy"] == p]
+        fc = [r["moves_to_first_correct"] for r in rs]
+        # Objects recognised at the end by the majority of seeds.
+        majority = sum(table[o][p]["final_correct"] * 2 > table[o][p]["runs"] for o in objects)
+        per_policy[p] = {
+            "objects_final_correct_majority": int(majority),
+            "final_correct_rate": float(np.mean([r["final_correct"] for r in rs])),
+            "median_first_correct": _median(fc, max_moves),
+            # 'never' counted as budget + 1 so policies are compared on the same runs.
+            "mean_first_correct_capped": float(
+                np.mean([max_moves + 1 if x is None else x for x in fc])
+            ),
+            "mean_planning_s": float(np.mean([r["planning_s"] for r in rs])),
+        }
+    paired: dict[str, Any] = {}
+    if "tree" in policies:
+        for other in policies:
+            if other == "tree":
+                continue
+            diffs = []
+            for r in runs:
+                if r["policy"] != "tree":
+                    continue
+                key = (other, r["object"], r["seed"])
+                o = next(x for x in runs if (x["policy"], x["object"], x["seed"]) == key)
+                a = r["moves_to_first_correct"] or max_moves + 1
+                b = o["moves_to_first_correct"] or max_moves + 1
+                diffs.append(b - a)
+            paired[f"tree_vs_{other}"] = {
+                "mean_moves_saved": float(np.mean(diffs)) if diffs else None,
+                "tree_fewer": int(sum(d > 0 for d in diffs)),
+                "ties": int(sum(d == 0 for d in diffs)),
+                "tree_more": int(sum(d < 0 for d in diffs)),
+            }
+    return {
+        "objects": objects,
+        "policies": policies,
+        "max_moves": max_moves,
+        "table": table,
+        "per_policy": per_policy,
+        "paired_by_seed": paired,
+    }
+
+
+def public_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    return [{k: v for k, v in r.items() if not k.startswith("_")} for r in runs]
+
+
+def make_jobs(
+    model_dir: Path,
+    library_root: Path,
+    objects: list[str],
+    policies: list[str],
+    seeds: list[int],
+    max_moves: int,
+    cfg: Config,
+) -> list[Job]:
+    return [
+        Job(str(model_dir), str(library_root), o, p, s, max_moves, cfg)
+        for o in objects
+        for p in policies
+        for s in seeds
+    ]
