@@ -18,6 +18,7 @@ from activetouch.errors import ActiveTouchError
 
 # Modules that register sub-commands, in the order `--help` lists them.
 COMMAND_MODULES: tuple[str, ...] = (
+    "activetouch.service.demo_command",
     "activetouch.service.bench_command",
     "activetouch.service.objects_command",
     "activetouch.service.train_command",
