@@ -61,6 +61,7 @@ def add_common_options(p: argparse.ArgumentParser) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)  # for reports that quote the command
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import shlex
-import sys
 import time
 from pathlib import Path
 
@@ -105,6 +104,6 @@ def run(args: argparse.Namespace) -> int:
         args.overrides,
         args.workers,
         Console(),
-        "python -m activetouch " + shlex.join(sys.argv[1:]),
+        "python -m activetouch " + shlex.join(args.argv),
     )
     return 0

@@ -1,0 +1,115 @@
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from activetouch import paths
+from activetouch.errors import ConfigError
+from activetouch.service.cli import main
+from activetouch.service.evaluation import (
+    first_correct,
+    first_stable_correct,
+    parse_seeds,
+    summarise,
+)
+
+
+def test_parse_seeds():
+    assert parse_seeds("0-3") == [0, 1, 2, 3]
+    assert parse_seeds("5,1, 2") == [1, 2, 5]
+    assert parse_seeds("0-1,7") == [0, 1, 7]
+    for bad in ("", "a-b", "3-1", "x"):
+        with pytest.raises(ConfigError):
+            parse_seeds(bad)
+
+
+def test_moves_until_correct():
+    labels = ["mug", "cup", "cup", "mug", "cup", "cup", "cup"]
+    assert first_correct(labels, "cup") == 2
+    assert first_stable_correct(labels, "cup") == 7
+    assert first_correct(labels, "bowl") is None
+    assert first_stable_correct(["cup", "cup"], "cup") is None
+
+
+def _run(obj, policy, seed, first, final):
+    return {
+        "object": obj,
+        "policy": policy,
+        "seed": seed,
+        "moves_to_first_correct": first,
+        "moves_to_stable_correct": None,
+        "final_correct": final,
+        "moves": 5,
+        "planning_s": 0.1,
+    }
+
+
+def test_summary_pairs_runs_by_seed():
+    runs = [
+        _run("cup", "tree", 0, 2, True),
+        _run("cup", "random", 0, 4, True),
+        _run("cup", "tree", 1, None, False),
+        _run("cup", "random", 1, 3, False),
+    ]
+    s = summarise(runs, max_moves=10)
+    assert s["table"]["cup"]["tree"]["ever_correct"] == 1
+    assert s["table"]["cup"]["random"]["median_first_correct"] == 3.5
+    # never counts as budget + 1 = 11: (4 - 2) + (3 - 11) = -6 over 2 pairs.
+    assert s["paired_by_seed"]["tree_vs_random"]["mean_moves_saved"] == -3.0
+    assert s["paired_by_seed"]["tree_vs_random"]["tree_fewer"] == 1
+    assert s["per_policy"]["tree"]["objects_final_correct_majority"] == 0
+
+
+def test_eval_command_writes_results_and_report(trained_home, tmp_path, capsys):
+    out = tmp_path / "report"
+    rc = main(
+        [
+            "eval",
+            "--data",
+            str(trained_home),
+            "--seeds",
+            "0-1",
+            "--max-moves",
+            "4",
+            "--policies",
+            "tree,random",
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+            "--set",
+            "grid.step_deg=40",
+        ]
+    )
+    assert rc == 0
+    doc = json.loads((out / "results.json").read_text())
+    assert len(doc["runs"]) == 3 * 2 * 2
+    r = doc["runs"][0]
+    for key in (
+        "object",
+        "policy",
+        "seed",
+        "labels",
+        "moves_to_first_correct",
+        "moves_to_stable_correct",
+        "final_correct",
+        "planning_s",
+    ):
+        assert key in r
+    assert all(1 <= len(r["labels"]) <= 4 for r in doc["runs"])
+    md = (out / "report.md").read_text()
+    assert "Median moves until first correct" in md and "python -m activetouch eval" in md
+    for fig in ("distance_vs_moves.png", "histograms.png", "contacts.png"):
+        assert (out / fig).stat().st_size > 10_000
+    assert paths.models_dir(trained_home).is_dir()
+
+
+def test_eval_user_mistakes(trained_home, tmp_path, capsys):
+    base = ["eval", "--data", str(trained_home), "--out", str(tmp_path / "r")]
+    assert main([*base, "--policies", "oracle"]) == 2
+    assert main([*base, "--seeds", "9-1"]) == 2
+    assert main([*base, "--max-moves", "0"]) == 2
+    assert main(["eval", "--data", str(tmp_path / "empty"), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "no model" in err
