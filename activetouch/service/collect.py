@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import Arm, Hand, Pose
 from activetouch.planning.grid import GridPoses
+from activetouch.recognition.contacts import drop_support_contacts
 from activetouch.recognition.dataset import Dataset, GraspRecord
 
 SKIPPED_ATTR = "skipped_pose_ids"  # unreachable poses, kept in the object's attrs for resuming
@@ -44,10 +45,13 @@ def collect_object(
     attrs: dict | None = None,
     batch: int = 16,
     on_grasp: Callable[[int, int], None] | None = None,
+    support_z: float | None = None,
+    support_margin_m: float = 0.005,
 ) -> CollectStats:
     """Grasp `name` at every pending pose of `grid`, appending to `dataset` every `batch` poses.
 
-    `on_grasp(done, total)` is called after each pose (for progress bars)."""
+    `on_grasp(done, total)` is called after each pose (for progress bars). With `support_z`
+    (the table plane in the object frame) contacts on the table are not stored."""
     t0 = time.perf_counter()
     todo = pending_poses(dataset, name, grid)
     stats = CollectStats(name=name, already_done=len(grid) - len(todo))
@@ -73,6 +77,8 @@ def collect_object(
             stats.skipped += 1
         else:
             grasp = hand.guarded_close()
+            if support_z is not None:
+                grasp = drop_support_contacts(grasp, pose, support_z, support_margin_m)
             records.append(GraspRecord(pid, pose, float(grid.preshapes[i]), grasp))
             stats.grasped += 1
             hand.open()

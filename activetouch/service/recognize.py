@@ -61,6 +61,14 @@ def recognize_in_twin(
     rng = np.random.default_rng(seed)
     with open_twin(spec, cfg.sim, seed=seed) as twin:
         session = RecognitionSession(
-            twin.hand, twin.arm, model, policy, session_cfg, rng, on_progress, cancel
+            twin.hand,
+            twin.arm,
+            model,
+            policy,
+            session_cfg,
+            rng,
+            on_progress,
+            cancel,
+            support_z=-float(spec.extents[2]) / 2,
         )
         return session.run()

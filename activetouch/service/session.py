@@ -22,6 +22,7 @@ from activetouch.errors import ConfigError, UnreachableError
 from activetouch.interfaces import Arm, Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.planning.policies import Plan, PlanningState, Policy
+from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
 
 
 @dataclass(frozen=True)
@@ -56,14 +57,6 @@ class RecognitionResult:
         return len(self.labels)
 
 
-def hand_to_object(pose: Pose, xyz_hand: np.ndarray) -> np.ndarray:
-    """Contact points from the hand frame into the object frame, for figures."""
-    from scipy.spatial.transform import Rotation
-
-    R = Rotation.from_quat(pose.quat).as_matrix()
-    return np.asarray(xyz_hand, dtype=np.float64).reshape(-1, 3) @ R.T + pose.xyz
-
-
 def top_k(p: np.ndarray, names: tuple[str, ...], k: int = 3) -> list[tuple[str, float]]:
     order = np.argsort(-p, kind="stable")[:k]
     return [(names[i], float(p[i])) for i in order]
@@ -80,7 +73,10 @@ class RecognitionSession:
         rng: np.random.Generator,
         on_progress: Callable[[Progress], None] | None = None,
         cancel: threading.Event | None = None,
+        support_z: float | None = None,
     ) -> None:
+        """`support_z`: the table plane in the object frame (the object pose is known, as in
+        the paper); contacts on it are dropped, as in training."""
         if cfg.max_moves < 1:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
@@ -89,6 +85,10 @@ class RecognitionSession:
         self.cfg, self.rng = cfg, rng
         self.on_progress = on_progress
         self.cancel = cancel or threading.Event()
+        self.support_z = support_z
+        self.support_margin_m = float(
+            model.config.get("recognition", {}).get("support_margin_m", 0.005)
+        )
         obs = model.observation
         self._poses = np.concatenate([obs.pose_xyz, obs.pose_quat], axis=1)
 
@@ -98,6 +98,8 @@ class RecognitionSession:
         self.arm.move_wrist(pose)  # raises UnreachableError
         grasp = self.hand.guarded_close()
         self.hand.open()
+        if self.support_z is not None:
+            grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)
         return grasp, pose
 
     def run(self) -> RecognitionResult:

@@ -25,6 +25,7 @@ def dataset_meta(cfg: Config) -> dict:
     return {
         "source": "twin",
         "grid": dataclasses.asdict(cfg.grid),
+        "support_margin_m": cfg.recognition.support_margin_m,
         "sim": dataclasses.asdict(cfg.sim),
     }
 
@@ -52,6 +53,8 @@ def _collect_one(
             grid,
             attrs={"extents": [float(v) for v in spec.extents], "set": spec.set},
             on_grasp=report,
+            support_z=-float(spec.extents[2]) / 2,  # the table, in the object frame
+            support_margin_m=cfg.recognition.support_margin_m,
         )
 
 
