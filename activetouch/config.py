@@ -33,6 +33,8 @@ class RecognitionConfig:
     partial_samples_per_object: int = 200
     partial_min_grasps: int = 1
     partial_max_grasps: int = 30
+    # Contacts this close to the support plane (or below it) are the table, not the object.
+    support_margin_m: float = 0.005
     seed: int = 0
 
 
