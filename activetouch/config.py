@@ -128,6 +128,28 @@ class Config:
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     grid: GridConfig = field(default_factory=GridConfig)
+@dataclass
+class ServiceConfig:
+    """Recognition daemon (`activetouch serve`) and its Zenoh clients (docs/api.md)."""
+
+    robot: str = "sim"  # one key chunk: everything lives under activetouch/<robot>/
+    # Zenoh endpoints. Loopback only unless told otherwise; scouting is always off.
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    connect: list[str] = field(default_factory=list)
+    zenoh_config: str = ""  # Zenoh JSON5 file to start from (TLS, access control); "" none
+    node_timeout_s: float = 5.0  # quick hand/arm calls (state, stop)
+    motion_timeout_s: float = 60.0  # hand/arm motions (open, grasp, move)
+    node_wait_s: float = 10.0  # at start: how long to wait for the hand/arm liveliness tokens
+    request_timeout_s: float = 600.0  # clients: a recognition must finish within this
+    state_hz: float = 20.0  # hand state / arm joint states publication rate
+    # Recognitions that may wait while one runs (FIFO); 0: a second request gets a busy error.
+    max_queued: int = 0
+    shutdown_timeout_s: float = 3.0  # wait for the running recognition to stop on SIGTERM
+    # The twin's nodes sleep this long per motion (move, grasp), to emulate a real robot's
+    # timing in demos and tests of cancel / shutdown; 0 runs the twin flat out.
+    sim_motion_delay_s: float = 0.0
+
+
     session: SessionConfig = field(default_factory=SessionConfig)
     sim: SimConfig = field(default_factory=SimConfig)
 
@@ -136,6 +158,7 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
+    service: ServiceConfig = field(default_factory=ServiceConfig)
         if value is None:
             return None
         return _coerce(value, args[0], key)

@@ -24,6 +24,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "activetouch.service.train_command",
     "activetouch.service.recognize_command",
     "activetouch.service.eval_command",
+    "activetouch.service.serve_command",
 )
 
 

@@ -20,6 +20,7 @@ widen a subscription or a query to other robots.
 | cancel | queryable (daemon) | CancelRequest -> Reply[CancelResult] |
 | status | queryable (daemon) | Empty -> Reply[Status] |
 | estop | queryable (daemon) | EStopRequest -> Reply[EStopResult] |
+| sim/place | queryable (twin only) | SimPlaceRequest -> Reply[SimPlaceResult] |
 | alive/<node> | liveliness token | (none) |
 """
 
@@ -34,6 +35,7 @@ ROOT = "activetouch"
 HAND_NODE = "hand"
 ARM_NODE = "arm"
 DAEMON_NODE = "daemon"
+SIM_NODE = "sim"
 
 _CHUNK = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,62}$")
 
@@ -130,6 +132,11 @@ class Keys:
     @property
     def estop(self) -> str:
         return self._k("estop")
+
+    # the twin's extra (simulation only)
+    @property
+    def sim_place(self) -> str:
+        return self._k("sim", "place")
 
     # liveliness
     def alive(self, node: str) -> str:

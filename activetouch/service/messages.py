@@ -56,6 +56,8 @@ __all__ = [
     "RecognizeResult",
     "Reply",
     "SessionSummary",
+    "SimPlaceRequest",
+    "SimPlaceResult",
     "Status",
     "decode",
     "encode",
@@ -255,19 +257,24 @@ class RecognizeRequest(Message, kw_only=True):
     object: Name | None = None
     horizon: PositiveInt | None = None  # None: the configured planner horizon
     simulations: PositiveInt | None = None  # None: the configured number of simulations
+    # Chosen by the client so it can pick its own progress samples out; None: the daemon
+    # makes one. Reported back in every Progress and in the result.
+    session_id: Name | None = None
 
 
 class Progress(Message, kw_only=True):
     """Published on `progress` after every grasp of a recognition."""
 
     session_id: Name
-    move: NonNegInt  # 0 is the initial grasp
+    move: NonNegInt  # grasps so far: 1 is the initial grasp (as max_moves counts them)
     pose: PoseMsg | None  # wrist pose of this grasp (object frame); None if none was reached
     n_contacts: NonNegInt
     top3: Annotated[list[LabelProb], msgspec.Meta(max_length=3)]  # (label, probability), best first
     skipped: NonNegInt = 0  # planned poses skipped so far (unreachable)
     planning_s: NonNegFloat = 0.0  # planning time spent for this move
     stamp: float = 0.0  # wall clock (Unix seconds) of the producer
+    pose_id: NonNegInt | None = None  # index of the grasp's pose in the model's training poses
+    elapsed_s: NonNegFloat = 0.0  # since the session started
 
 
 class RecognizeResult(Message, kw_only=True):
@@ -275,14 +282,15 @@ class RecognizeResult(Message, kw_only=True):
     label: str
     probability: Probability
     labels: list[str]  # top label after each grasp (index 0: the initial grasp)
-    moves: NonNegInt  # moves used (grasps after the initial one)
+    moves: NonNegInt  # grasps made, the initial one included (= len(labels))
     skipped: NonNegInt = 0  # planned poses that could not be reached
     planning_s: NonNegFloat = 0.0  # total planning time
     elapsed_s: NonNegFloat = 0.0  # request to result
     policy: Policy = "tree"
     seed: NonNegInt | None = None
     object: str | None = None
-    stop_reason: str = ""  # e.g. confident | budget | cancelled
+    stop_reason: str = ""  # confident | budget | exhausted | cancelled | skips
+    pose_ids: list[NonNegInt] = []  # the executed grasps' poses, in order
 
 
 class CancelRequest(Message, kw_only=True):
@@ -325,6 +333,22 @@ class Status(Message, kw_only=True):
     model: str | None = None  # model name / path / checksum
     session: SessionSummary | None = None  # the recognition in progress, if any
     uptime_s: NonNegFloat = 0.0
+    mode: str = ""  # sim | hardware
+    model_error: str | None = None  # why no model is loaded
+    queued: NonNegInt = 0  # recognitions waiting behind the current one
+
+
+class SimPlaceRequest(Message, kw_only=True):
+    """Twin only: put a library object on the table and restart the hand's noise from `seed`
+    (so a recognition repeats exactly for a seed)."""
+
+    object: Name
+    seed: NonNegInt | None = None
+
+
+class SimPlaceResult(Message, kw_only=True):
+    object: str
+    extents: Vec3  # bounding-box size, metres
 
 
 # --------------------------------------------------------------------------- encode / decode

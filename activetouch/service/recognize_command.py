@@ -1,16 +1,22 @@
-"""`activetouch recognize`: recognise one object in the twin, with live progress."""
+"""`activetouch recognize`: recognise one object in the twin, with live progress.
+
+In-process by default; with `--connect ENDPOINT` the recognition runs on the daemon
+(`activetouch serve`) over Zenoh, with the same progress lines and --json output."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 
 from rich.console import Console
 
 from activetouch import paths
-from activetouch.config import load_config
+from activetouch.config import Config, load_config
+from activetouch.errors import ActiveTouchError, ConfigError
 from activetouch.planning.policies import POLICY_NAMES
+from activetouch.service.messages import RecognizeRequest
 from activetouch.service.recognize import load_trained, model_path, recognize_in_twin
 from activetouch.service.session import Progress, RecognitionResult
 from activetouch.sim.objects import ObjectLibrary
@@ -19,13 +25,34 @@ from activetouch.sim.objects import ObjectLibrary
 def register(sub: argparse._SubParsersAction) -> None:
     from activetouch.service.cli import add_common_options
 
-    p = sub.add_parser("recognize", help="recognise an object by touch (in the twin)")
-    p.add_argument("--object", required=True, help="object to place on the table")
+    p = sub.add_parser(
+        "recognize", help="recognise an object by touch (in the twin, or via a daemon)"
+    )
+    p.add_argument(
+        "--object",
+        default=None,
+        help="object to place on the table (required unless the daemon drives a real robot)",
+    )
     p.add_argument("--policy", default=None, help=f"one of {', '.join(POLICY_NAMES)}")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-moves", type=int, default=None, help="grasp budget")
     p.add_argument("--model", metavar="DIR", default=None, help="model directory")
     p.add_argument("--json", action="store_true", help="print one JSON object with the result")
+    p.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        action="append",
+        default=None,
+        help="recognise through the daemon at this Zenoh endpoint (repeatable), "
+        "e.g. tcp/127.0.0.1:7447",
+    )
+    p.add_argument("--robot", default=None, help="robot name with --connect (service.robot)")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=None,
+        help="with --connect: seconds the recognition may take (service.request_timeout_s)",
+    )
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -36,14 +63,14 @@ def format_progress(ev: Progress) -> str:
     return f"move {ev.move:>2}  pose {ev.pose_id:>4}  contacts {ev.n_contacts}  |  {top}{skipped}"
 
 
-def result_json(res: RecognitionResult, obj: str, policy: str, seed: int) -> dict:
+def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int | None) -> dict:
     return {
         "object": obj,
         "policy": policy,
         "seed": seed,
         "label": res.label,
         "probability": res.probability,
-        "correct": res.label == obj,
+        "correct": res.label == obj if obj is not None else None,
         "labels": res.labels,
         "moves": res.moves,
         "skipped": res.skipped,
@@ -60,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
     root = paths.data_dir(args.data)
     # With --json, stdout carries only the JSON object; progress goes to stderr.
     console = Console(stderr=args.json)
+    if args.connect:
+        return run_remote(args, cfg, policy, console)
+    if not args.object:
+        raise ConfigError("--object is required: the twin needs the object to place")
     model = load_trained(model_path(root, args.model))
     library = ObjectLibrary(paths.objects_dir(root))
     console.print(
@@ -76,13 +107,75 @@ def run(args: argparse.Namespace) -> int:
         max_moves=args.max_moves,
         on_progress=lambda ev: console.print(format_progress(ev), highlight=False),
     )
+    _report(args, res, args.object, policy, args.seed, console)
+    return 0
+
+
+def _report(
+    args: argparse.Namespace,
+    res: RecognitionResult,
+    obj: str | None,
+    policy: str,
+    seed: int | None,
+    console: Console,
+) -> None:
     if args.json:
-        json.dump(result_json(res, args.object, policy, args.seed), sys.stdout)
+        json.dump(result_json(res, obj, policy, seed), sys.stdout)
         sys.stdout.write("\n")
+        return
+    if obj is None:
+        verdict = ""
     else:
-        verdict = "[green]correct[/]" if res.label == args.object else "[red]wrong[/]"
+        verdict = " — [green]correct[/]" if res.label == obj else " — [red]wrong[/]"
+    console.print(
+        f"recognised: [bold]{res.label}[/] (p = {res.probability:.2f}) after {res.moves} "
+        f"grasps, {res.skipped} poses skipped, stopped: {res.stop_reason}{verdict}"
+    )
+
+
+def run_remote(args: argparse.Namespace, cfg: Config, policy: str, console: Console) -> int:
+    """The recognition on the daemon at --connect, with live progress."""
+    from activetouch.service.client import (
+        new_session_id,
+        open_client,
+        session_progress,
+        session_result,
+    )
+    from activetouch.service.daemon import check_service_config
+
+    svc = cfg.service
+    if args.robot:
+        svc.robot = args.robot
+    check_service_config(svc)
+    timeout = args.timeout if args.timeout is not None else svc.request_timeout_s
+    if not timeout > 0:
+        raise ConfigError(f"--timeout must be > 0, got {timeout}")
+    request = RecognizeRequest(
+        policy=policy,  # validated by the daemon, which names a bad value
+        max_moves=args.max_moves if args.max_moves is not None else cfg.session.max_moves,
+        seed=args.seed,
+        object=args.object,
+        session_id=new_session_id(),
+    )
+    with open_client(
+        args.connect, svc.robot, timeout=svc.node_timeout_s, zenoh_config=svc.zenoh_config or None
+    ) as client:
         console.print(
-            f"recognised: [bold]{res.label}[/] (p = {res.probability:.2f}) after {res.moves} "
-            f"grasps, {res.skipped} poses skipped, stopped: {res.stop_reason} — {verdict}"
+            f"recognising [bold]{args.object or 'the object on the table'}[/] with the {policy} "
+            f"policy on robot {svc.robot} via {', '.join(args.connect)} (seed {args.seed})"
         )
+        try:
+            msg = client.recognize(
+                request,
+                on_progress=lambda ev: console.print(
+                    format_progress(session_progress(ev)), highlight=False
+                ),
+                timeout=timeout,
+            )
+        except KeyboardInterrupt:
+            # Do not leave the robot working for nobody.
+            with contextlib.suppress(ActiveTouchError):
+                client.cancel(request.session_id)
+            raise
+    _report(args, session_result(msg), args.object, policy, msg.seed, console)
     return 0

@@ -1,0 +1,213 @@
+"""`activetouch serve` (the daemon) and its small clients `status`, `cancel`, `estop`.
+
+`activetouch recognize --connect ...` (recognize_command.py) is the recognition client.
+Clients find the daemon at `--connect ENDPOINT` (repeatable), or else at the endpoints the
+daemon of the same configuration listens on (``service.listen``, default tcp/127.0.0.1:7447).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import msgspec
+from rich.console import Console
+
+from activetouch import paths
+from activetouch.config import Config, load_config
+from activetouch.errors import ConfigError
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from activetouch.service.cli import add_common_options
+
+    p = sub.add_parser(
+        "serve",
+        help="run the recognition daemon (Zenoh API, docs/api.md)",
+        description=(
+            "Run the recognition daemon. With --sim (the default) the PyBullet twin is served "
+            "as the robot's hand and arm nodes and recognitions run on it through Zenoh. "
+            "Stops cleanly on SIGTERM / SIGINT."
+        ),
+    )
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--sim", dest="mode", action="store_const", const="sim", help="the twin (default)"
+    )
+    mode.add_argument(
+        "--hardware",
+        dest="mode",
+        action="store_const",
+        const="hardware",
+        help="the real robot (no drivers in this build yet: only with --role daemon)",
+    )
+    p.set_defaults(mode="sim")
+    p.add_argument(
+        "--role",
+        choices=("all", "nodes", "daemon"),
+        default="all",
+        help="all: nodes and recognition service in this process (default); nodes: only the "
+        "hand/arm(/sim) nodes; daemon: only the service, reaching nodes served elsewhere",
+    )
+    _client_options(p, serving=True)
+    p.add_argument("--model", metavar="DIR", default=None, help="model directory")
+    p.add_argument("--log-format", choices=("logfmt", "json"), default="logfmt")
+    p.add_argument("--log-level", default="info", help="debug | info | warning | error")
+    add_common_options(p)
+    p.set_defaults(func=run_serve)
+
+    for name, helptext, fn in (
+        ("status", "show the daemon's status (nodes, session, model)", run_status),
+        ("cancel", "cancel the running recognition", run_cancel),
+        ("estop", "emergency stop: abort the recognition, stop the arm, open the hand", run_estop),
+    ):
+        q = sub.add_parser(name, help=helptext)
+        _client_options(q, serving=False)
+        if name == "cancel":
+            q.add_argument("--session", default=None, help="session id (default: the current)")
+        if name == "estop":
+            q.add_argument("--reason", default="", help="recorded in the daemon's log")
+        q.add_argument("--json", action="store_true", help="print the reply as JSON")
+        add_common_options(q)
+        q.set_defaults(func=fn)
+
+
+def _client_options(p: argparse.ArgumentParser, serving: bool) -> None:
+    p.add_argument("--robot", default=None, help="robot name (default: service.robot)")
+    if serving:
+        p.add_argument(
+            "--listen",
+            metavar="ENDPOINT",
+            action="append",
+            default=None,
+            help="Zenoh endpoint to listen on (repeatable; default service.listen, "
+            "tcp/127.0.0.1:7447)",
+        )
+    p.add_argument(
+        "--connect",
+        metavar="ENDPOINT",
+        action="append",
+        default=None,
+        help="Zenoh endpoint to connect to (repeatable)"
+        + ("" if serving else "; default: the daemon's service.listen"),
+    )
+    if not serving:
+        p.add_argument(
+            "--timeout", type=float, default=None, help="seconds (default service.node_timeout_s)"
+        )
+
+
+def service_config(args: argparse.Namespace) -> Config:
+    """The configuration with the command line's --robot / --listen / --connect applied."""
+    from activetouch.service.daemon import check_service_config
+
+    if args.config:  # errors of the file name the file; those of --set name the key
+        try:
+            check_service_config(load_config(args.config).service)
+        except ConfigError as e:
+            text = str(e)
+            raise ConfigError(
+                text if str(args.config) in text else f"{args.config}: {text}"
+            ) from None
+    cfg = load_config(args.config, args.overrides)
+    svc = cfg.service
+    if args.robot:
+        svc.robot = args.robot
+    if getattr(args, "listen", None):
+        svc.listen = list(args.listen)
+    if args.connect:
+        svc.connect = list(args.connect)
+    return cfg
+
+
+def client_endpoints(args: argparse.Namespace, cfg: Config) -> list[str]:
+    """--connect, else the endpoints a daemon with this configuration listens on."""
+    if args.connect:
+        return list(args.connect)
+    eps = [e for e in cfg.service.listen if not e.endswith(":0")]  # port 0: not knowable
+    if not eps:
+        raise ConfigError("no endpoint to reach the daemon: give --connect ENDPOINT")
+    return eps
+
+
+def run_serve(args: argparse.Namespace) -> int:
+    from activetouch.service.daemon import DaemonOptions, serve, setup_logging
+    from activetouch.service.recognize import model_path
+
+    cfg = service_config(args)
+    root = paths.data_dir(args.data)
+    opts = DaemonOptions(
+        mode=args.mode,
+        role=args.role,
+        data=root,
+        model_dir=model_path(root, args.model),
+        cfg=cfg,
+    )
+    setup_logging(args.log_format, args.log_level)
+    return serve(opts)
+
+
+def _connect(args: argparse.Namespace):  # -> contextmanager[DaemonClient]
+    from activetouch.service.client import open_client
+    from activetouch.service.daemon import check_service_config
+
+    cfg = service_config(args)
+    check_service_config(cfg.service)
+    svc = cfg.service
+    timeout = args.timeout if args.timeout is not None else svc.node_timeout_s
+    if not timeout > 0:
+        raise ConfigError(f"--timeout must be > 0, got {timeout}")
+    return open_client(
+        client_endpoints(args, cfg),
+        svc.robot,
+        timeout=timeout,
+        zenoh_config=svc.zenoh_config or None,
+    )
+
+
+def _print_json(msg: msgspec.Struct) -> None:
+    json.dump(msgspec.to_builtins(msg), sys.stdout)
+    sys.stdout.write("\n")
+
+
+def run_status(args: argparse.Namespace) -> int:
+    from activetouch.service.client import describe_status
+
+    with _connect(args) as client:
+        st = client.status()
+    if args.json:
+        _print_json(st)
+    else:
+        console = Console()
+        for line in describe_status(st):
+            console.print(line, highlight=False)
+    return 0
+
+
+def run_cancel(args: argparse.Namespace) -> int:
+    with _connect(args) as client:
+        res = client.cancel(args.session)
+    if args.json:
+        _print_json(res)
+    elif res.cancelled:
+        Console().print(f"cancelled recognition {res.session_id}", highlight=False)
+    else:
+        what = f"recognition {args.session}" if args.session else "recognition"
+        Console().print(f"no {what} to cancel", highlight=False)
+    return 0
+
+
+def run_estop(args: argparse.Namespace) -> int:
+    with _connect(args) as client:
+        res = client.estop(args.reason)
+    if args.json:
+        _print_json(res)
+    else:
+        Console().print(
+            f"emergency stop: arm {'stopped' if res.arm_stopped else 'NOT stopped'}, hand "
+            f"{'opened' if res.hand_opened else 'NOT opened'}"
+            + (f" ({'; '.join(res.errors)})" if res.errors else ""),
+            highlight=False,
+        )
+    return 0 if res.arm_stopped and res.hand_opened else 1
