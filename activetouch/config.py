@@ -75,14 +75,15 @@ class GridConfig:
 class SimConfig:
     """PyBullet twin: tactile model, guarded close, hand geometry choices, world."""
 
-    # Tactile model: force = stiffness * penetration of the sensor patch (a compliant skin),
-    # pressure = force * pressure_per_newton + Gaussian noise, contact = pressure > threshold.
+    # Tactile model: each contact point's force = stiffness * penetration (a compliant skin);
+    # the elastomer over the barometers spreads it to the sites of the same link with a
+    # Gaussian of the point-site distance (1 right over a site); pressure = summed force *
+    # pressure_per_newton + Gaussian noise, contact = pressure > threshold.
     contact_threshold: float = 20.0  # sensor units above zero offset (ReFlex driver default)
     noise_std: float = 2.0  # sensor units
     contact_stiffness_n_per_m: float = 2000.0
     pressure_per_newton: float = 50.0
-    finger_patch_radius_m: float = 0.01  # contact point -> nearest finger site within this
-    palm_patch_radius_m: float = 0.015
+    spread_sigma_m: float = 0.005  # load spreading in the skin (site pitch 0.0079)
     # Noise stream: "pose" seeds each grasp from (seed, wrist pose, preshape), so a grasp does
     # not depend on what ran before (resumable collections repeat exactly); "stream" draws
     # from one generator per hand seeded once.
@@ -91,9 +92,14 @@ class SimConfig:
     # Guarded close (ReFlex: 0.05 rad spool steps, each finger stops at its own first contact).
     spool_step_rad: float = 0.05
     substeps: int = 5  # collision checks inside the step where a finger first meets something
+    # Tendon travel commanded past the last contact-free reading: the servo still runs to the
+    # command it had when contact was sensed (reflex_base guarded_move commands the measured
+    # spool + one step). 0: stop at the first sensed contact.
+    post_contact_travel_rad: float = 0.05
     spool_limit_rad: float = 2.8  # tendon travel limit (tactile_triangles' Gazebo model)
     flexure_coupling: float = 0.25  # free finger: distal = k * proximal
     stall_depth_m: float = 0.003  # a link pushed this deep without a sensed contact is blocked
+    skin_depth_m: float = 0.0015  # after a sensed contact: deepest press into the skin
     preshape_limit_rad: float = 1.6
     # Distal sensor sites (link frame); the visualiser URDF's by default. tactile_triangles'
     # Gazebo model: x = [0.0135, 0.0215, 0.0295, 0.0375], z = 0.009 each.
@@ -102,8 +108,11 @@ class SimConfig:
     # Proximal joint origin pitch: 0 (hardware-facts / older visualiser URDF: open fingers lie
     # flat, radially outwards) or 0.28 (newest visualiser URDF).
     proximal_zero_pitch_rad: float = 0.0
-    # Spool angle of an open hand: 0 opens the fingers flat as the ReFlex does; a larger value
-    # keeps them raised (fewer wrist poses blocked by the table).
+    # Spool angle of an open hand: 0 opens the fingers straight out, as the ReFlex does. Raising
+    # them does not unblock training-grid poses (measured, paper's 7 objects, default grid: 42%
+    # unreachable at 0 and 0.2, 45% at 0.5): the blocked poses are the 0 deg ring (the palm
+    # housing itself dips under the table for objects < ~0.11 m tall) and the 25 deg ring at
+    # roll 0, where the thumb points down at the table and raising it turns it further down.
     open_spool_rad: float = 0.0
     # World and wrist.
     table_size_m: list[float] = field(default_factory=lambda: [1.5, 1.5, 0.05])

@@ -6,17 +6,24 @@ Sections (each a function returning a dict of figures, run by `main` in `SECTION
   preshape (0 or 0.8). Reports the close alone and the whole cycle (open, preshape, move_wrist
   with its collision check, close; unreachable poses included), contacts per grasp and
   collision queries per grasp.
+- grid: contacts per grasp over the training grid (planning.grid, the [grid] config) of one
+  object (`--grid-object`, default the paper's cup): unreachable fraction, mean / median /
+  10th and 90th percentile contacts, share of grasps with >= 3 contacts (a triangle), fingers
+  touching, the contact-count histogram, grasps per second over the grid.
+Builtin library objects are generated into a temporary library unless --data is given.
 Peak memory (resident set, getrusage) is reported for the whole run.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import resource
 import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,10 +31,10 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from activetouch.config import SimConfig, load_config
+from activetouch.config import GridConfig, SimConfig, load_config
 from activetouch.errors import UnreachableError
-from activetouch.interfaces import Pose
-from activetouch.planning.grid import look_at_quaternion
+from activetouch.interfaces import N_FINGER_SENSORS, SENSORS_PER_FINGER, Pose
+from activetouch.planning.grid import look_at_quaternion, training_grid
 from activetouch.sim.hand import SimHand
 from activetouch.sim.world import SimArm, SimWorld
 
@@ -55,6 +62,19 @@ def random_wrist_poses(
     return out
 
 
+@contextlib.contextmanager
+def _library_root(data: str | None) -> Iterator[Path | None]:
+    """The object library to use: the data directory's with --data, else a temporary one
+    (builtins are generated there, nothing is written to the user's data)."""
+    if data is not None:
+        from activetouch.paths import data_dir, objects_dir
+
+        yield objects_dir(data_dir(data))
+        return
+    with tempfile.TemporaryDirectory(prefix="activetouch-bench-") as tmp:
+        yield Path(tmp)
+
+
 def _place(world: SimWorld, obj: str, data: str | None) -> str:
     if obj in PRIMITIVES:
         kind, size = PRIMITIVES[obj]
@@ -63,11 +83,39 @@ def _place(world: SimWorld, obj: str, data: str | None) -> str:
     from activetouch.paths import data_dir, objects_dir
     from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary
 
-    lib = ObjectLibrary(objects_dir(data_dir(data)))
-    if obj in BUILTIN_OBJECTS:
-        lib.ensure_builtins([obj])
-    world.place(lib.get(obj))
+    with _library_root(data) as root:
+        if obj in BUILTIN_OBJECTS:
+            assert root is not None
+            lib = ObjectLibrary(root)
+            lib.ensure_builtins([obj])
+        else:  # an imported object lives in the user's library
+            lib = ObjectLibrary(objects_dir(data_dir(data)))
+        world.place(lib.get(obj))  # loaded into the world: the files may go
     return obj
+
+
+def contact_statistics(counts: np.ndarray, fingers: np.ndarray) -> dict[str, Any]:
+    """Figures of the contacts per grasp (`counts`) and fingers touching per grasp."""
+    c = np.asarray(counts, dtype=np.int64)
+    if len(c) == 0:
+        return {"mean_contacts": 0.0, "grasps_with_3plus_contacts": 0.0}
+    return {
+        "mean_contacts": float(c.mean()),
+        "median_contacts": float(np.median(c)),
+        "p10_contacts": float(np.percentile(c, 10)),
+        "p90_contacts": float(np.percentile(c, 90)),
+        "max_contacts": int(c.max()),
+        "grasps_with_3plus_contacts": float(np.mean(c >= 3)),
+        "grasps_without_contact": float(np.mean(c == 0)),
+        "mean_fingers_touching": float(np.mean(fingers)),
+        # grasps with 0, 1, 2, ... contacts
+        "contacts_histogram": " ".join(str(int(v)) for v in np.bincount(c)),
+    }
+
+
+def fingers_touching(sensor_ids: np.ndarray) -> int:
+    ids = np.asarray(sensor_ids)
+    return len(np.unique(ids[ids < N_FINGER_SENSORS] // SENSORS_PER_FINGER))
 
 
 def bench_grasps(
@@ -121,10 +169,50 @@ def bench_grasps(
     }
 
 
+def bench_grid(
+    cfg: SimConfig,
+    grid_cfg: GridConfig,
+    obj: str = "cup",
+    data: str | None = None,
+) -> dict[str, Any]:
+    """Training-collection loop (service/collect.py) over `obj`'s grid: contact figures."""
+    with SimWorld(cfg) as world:
+        arm, hand = SimArm(world), SimHand(world)
+        _place(world, obj, data)
+        assert world.object is not None
+        grid = training_grid(world.object.extents, grid_cfg)
+        counts, fingers, unreachable = [], [], 0
+        t0 = time.perf_counter()
+        for i in range(len(grid)):
+            hand.open()
+            hand.preshape(float(grid.preshapes[i]))
+            try:
+                arm.move_wrist(Pose.from_array(grid.poses[i]))
+            except UnreachableError:
+                unreachable += 1
+                continue
+            g = hand.guarded_close()
+            counts.append(g.n_contacts)
+            fingers.append(fingers_touching(g.sensor_ids))
+        total_s = time.perf_counter() - t0
+    n = len(grid)
+    return {
+        "object": obj,
+        "poses": n,
+        "grasped": len(counts),
+        "unreachable_fraction": unreachable / n if n else 0.0,
+        **contact_statistics(np.asarray(counts), np.asarray(fingers)),
+        "grasps_per_s": len(counts) / total_s if total_s > 0 else 0.0,
+    }
+
+
 # Sections of the benchmark: name -> function(args, cfg) -> figures. Others (e.g. training
 # collection timing) add themselves here.
 SECTIONS: dict[str, Callable[[argparse.Namespace, SimConfig], dict[str, Any]]] = {
     "grasps": lambda a, cfg: bench_grasps(cfg, a.object, a.grasps, a.seed, a.data),
+    "grid": lambda a, cfg: bench_grid(
+        cfg, load_config(a.config, a.set).grid, a.grid_object, a.data
+    ),
 }
 
 
@@ -162,9 +250,16 @@ def main(argv: list[str] | None = None) -> int:
         default="primitive:sphere",
         help=f"{', '.join(PRIMITIVES)} or a library object name (default primitive:sphere)",
     )
+    p.add_argument(
+        "--grid-object",
+        default="cup",
+        help="object of the grid section: a library object or primitive (default cup)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--data", default=None, help="data directory (library objects)")
-    p.add_argument("--config", default=None, help="TOML config (its [sim] section is used)")
+    p.add_argument(
+        "--config", default=None, help="TOML config (its [sim] and [grid] sections are used)"
+    )
     p.add_argument(
         "--set",
         action="append",

@@ -2,25 +2,50 @@
 
 Physics approach (chosen for speed with real collision geometry): the fingers are posed
 kinematically and every reading runs Bullet's collision detection between the hand's boxes and
-the table/object shapes. A sensor is a compliant patch: each penetrating contact point on a
-sensor-carrying link is assigned to the nearest sensor site on that link within a patch radius,
-its normal force is stiffness x penetration depth, and the sensor reads that force scaled to
-sensor units plus Gaussian noise. Contact = pressure over the threshold.
+the table/object shapes.
+
+Tactile skin. TakkTile barometers sit under an elastomer layer, so a load pressed into the skin
+spreads to neighbouring sensors (pitch 7.9 mm). Each penetrating contact point on a
+sensor-carrying link carries a normal force of stiffness x penetration depth; a sensor site on
+the same link feels that force times a Gaussian of the point-site distance (`spread_sigma_m`,
+1 right over the site, so a contact centred on a site reads as its full force); sensors of other
+links feel nothing (proximal, distal and palm skins are separate pieces). A sensor reads its
+summed force in sensor units plus Gaussian noise; contact = pressure over the threshold. So a
+light touch registers on one sensor and a firm one also on its neighbours, never three pitches
+away (the Gaussian there is ~1e-5).
 
 Why not dynamic, position-controlled joints: a stable finger/object contact needs ~1 ms steps
 and several steps per spool increment, i.e. thousands of solver steps per grasp (a few grasps
-per second), while the objects are fixed and the ReFlex stops each finger at its first contact
-anyway, so the contact dynamics after touch never matter. Kinematic stepping + collision
-queries gives the same stopping angles and contact sites at > 20 grasps per second.
+per second), while the objects are fixed and the ReFlex stops each finger right after its first
+contact. Kinematic stepping + collision queries gives the stopping angles and contact sites at
+> 20 grasps per second.
 
-Guarded close, as the ReFlex does it: each finger's spool advances 0.05 rad per step; a free
-finger bends its proximal joint by spool / (1 + k) and its distal joint by k times that (the
-flexure coupling); a finger stops at its first sensed contact (a sensor on that finger over
-threshold), at the spool limit, or when stalled. When a step first makes a finger touch
-anything, that step is re-run in `substeps` parts, which is where a continuously moving finger
-would have stopped. A link pushed `stall_depth_m` deep without a sensed contact is blocked:
-a blocked proximal link holds and the distal joint takes the rest of the tendon travel (the
-passive flexure wraps around the object); a blocked distal link stalls the finger.
+Guarded close, as the ReFlex does it: each finger's spool advances 0.05 rad per step (one
+reading of the hand); a free finger bends its proximal joint by spool / (1 + k) and its distal
+joint by k times that (the flexure coupling). When a step first makes a finger touch anything,
+that step is re-run in `substeps` parts (readings in between are finer than the real hand's).
+
+After the first sensed contact. The ReFlex Beta driver's guarded_move (reflex-ros-pkg
+reflex_base.py; "close until a sensor of the finger is in contact", as the paper describes its
+guarded enclosure) sends each finger, at every reading without contact, the command "measured
+spool + 0.05 rad", and at the first reading with contact stops sending commands: the servo still
+runs on to the command it already has. So a finger does not freeze where it first touched: its
+tendon travels on to (spool at the last contact-free reading) + `post_contact_travel_rad`
+(default one step; 0 freezes the finger at its first sensed contact). Where that travel goes
+follows the finger's mechanics: the distal bend is passive (tendon against a flexure), and the
+skin is far stiffer than the flexure, so a proximal link in contact holds its angle and the
+distal wraps on (tendon tension rising) until the travel is used or the distal is pressed into
+something; a distal link in contact is pressed on into its skin. No link is pressed deeper than
+`skin_depth_m`: the finger settles just short of it (the servo stalls against the compressed
+skin; the last substep is halved `PRESS_HALVINGS` times to find where). The remaining travel is
+at most one step (< 0.05 rad), so this adds neighbouring sensors and firmer readings, not new
+contact regions. Closing on until both links touch (reflex_base's separate `solid_contact`
+primitive) is not what the paper's guarded enclosure does, so it is not modelled.
+
+Before any sensed contact, a link pushed `stall_depth_m` deep (an unsensed part, e.g. a link's
+side or back) is blocked: a blocked proximal link holds and the distal joint takes the rest of
+the tendon travel (the passive flexure wraps around the object); a blocked distal link stalls
+the finger. A finger also stops at the spool limit.
 """
 
 from __future__ import annotations
@@ -42,6 +67,7 @@ from activetouch.interfaces import (
     HandState,
 )
 from activetouch.sim.reflex_urdf import (
+    N_PROXIMAL_SENSORS,
     coupled_joints,
     finger_sensor_positions,
     palm_site_positions,
@@ -51,6 +77,15 @@ from activetouch.sim.world import HandContacts, SimWorld
 STOP_CONTACT = "contact"
 STOP_LIMIT = "limit"
 STOP_STALL = "stall"
+# A finger pressing into its skin past a sensed contact halves its substep this many times
+# before it settles short of `skin_depth_m` (resolution: substep / 8, ~0.1 mm at the tip).
+PRESS_HALVINGS = 3
+
+
+def spread_kernel(distance: np.ndarray, sigma: float) -> np.ndarray:
+    """Share of a contact's load a site feels at `distance` (metres) through the skin: a
+    Gaussian, 1 right over the site."""
+    return np.exp(-0.5 * (np.asarray(distance) / sigma) ** 2)
 
 
 def site_forces(
@@ -59,20 +94,18 @@ def site_forces(
     contact_depth: np.ndarray,
     site_link: np.ndarray,
     site_xyz: np.ndarray,
-    site_radius: np.ndarray,
+    sigma: float,
     stiffness: float,
 ) -> np.ndarray:
-    """(n_sites,) normal force on each sensor patch, newtons. Each contact point goes to the
-    nearest site on its own link within that site's radius (others are not sensed)."""
-    force = np.zeros(len(site_link))
+    """(n_sites,) load on each sensor, newtons: every contact point's force (stiffness x
+    penetration) spread over the sites on its own link by `spread_kernel` of the point-site
+    distance; the skin of one link does not carry load to another's."""
     if len(contact_link) == 0:
-        return force
-    d = np.linalg.norm(contact_xyz[:, None, :] - site_xyz[None, :, :], axis=2)
-    d[contact_link[:, None] != site_link[None, :]] = np.inf
-    nearest = np.argmin(d, axis=1)
-    ok = d[np.arange(len(nearest)), nearest] <= site_radius[nearest]
-    np.add.at(force, nearest[ok], stiffness * contact_depth[ok])
-    return force
+        return np.zeros(len(site_link))
+    d2 = np.sum((contact_xyz[:, None, :] - site_xyz[None, :, :]) ** 2, axis=2)
+    weight = np.exp(d2 * (-0.5 / (sigma * sigma)))
+    weight[contact_link[:, None] != site_link[None, :]] = 0.0
+    return (stiffness * contact_depth) @ weight
 
 
 @dataclass(frozen=True)
@@ -96,16 +129,13 @@ class SimHand(Hand):
             raise ValueError(f"noise_mode must be 'pose' or 'stream', not {self.cfg.noise_mode!r}")
         if self.cfg.substeps < 1 or self.cfg.spool_step_rad <= 0:
             raise ValueError("substeps must be >= 1 and spool_step_rad > 0")
+        if self.cfg.spread_sigma_m <= 0 or self.cfg.post_contact_travel_rad < 0:
+            raise ValueError("spread_sigma_m must be > 0 and post_contact_travel_rad >= 0")
         self.seed = self.cfg.seed if seed is None else int(seed)
         self.reseed(self.seed)
         g = world.geometry
         self._proximal_limit = g.proximal_limit
         self._distal_limit = g.distal_limit
-        self._site_radius = np.where(
-            np.arange(N_SENSORS) < N_FINGER_SENSORS,
-            self.cfg.finger_patch_radius_m,
-            self.cfg.palm_patch_radius_m,
-        )
         links = world.links
         self._finger_of_link = {int(links.proximal[f]): f for f in range(N_FINGERS)}
         self._finger_of_link.update({int(links.distal[f]): f for f in range(N_FINGERS)})
@@ -159,25 +189,40 @@ class SimHand(Hand):
         thr = cfg.contact_threshold
         step, fine_step = cfg.spool_step_rad, cfg.spool_step_rad / cfg.substeps
         limit = cfg.spool_limit_rad
+        stall = cfg.stall_depth_m
         prox, dist = w.proximal, w.distal
         spool = prox + dist  # the tendon wraps both joints
         blocked = np.zeros(N_FINGERS, dtype=bool)
         active = np.ones(N_FINGERS, dtype=bool)
         fine = np.zeros(N_FINGERS, dtype=bool)
+        fine_inc = np.full(N_FINGERS, fine_step)
+        # Tendon command once contact is sensed (NaN before): the servo runs on to it.
+        target = np.full(N_FINGERS, np.nan)
+        reading = spool.copy()  # spool at the last (coarse-step) reading
+        substep = np.zeros(N_FINGERS, dtype=np.int64)
         reasons = [""] * N_FINGERS
+
+        def finger_sensed(p: np.ndarray, f: int) -> tuple[bool, bool]:
+            """Whether finger f's proximal and distal sensors read over threshold."""
+            base = f * SENSORS_PER_FINGER
+            return (
+                bool(np.any(p[base : base + N_PROXIMAL_SENSORS] > thr)),
+                bool(np.any(p[base + N_PROXIMAL_SENSORS : base + SENSORS_PER_FINGER] > thr)),
+            )
 
         w.flush_contacts()
         pressures, depth = self._sense(w.hand_contacts(), rng)
         queries = 1
         for f in range(N_FINGERS):  # a finger already touching does not move
-            if np.any(pressures[f * SENSORS_PER_FINGER : (f + 1) * SENSORS_PER_FINGER] > thr):
+            if any(finger_sensed(pressures, f)):
                 active[f], reasons[f] = False, STOP_CONTACT
             elif spool[f] >= limit - 1e-12:
                 active[f], reasons[f] = False, STOP_LIMIT
 
         while active.any():
+            cap = np.where(np.isnan(target), limit, target)
             new_spool = np.where(
-                active, np.minimum(spool + np.where(fine, fine_step, step), limit), spool
+                active, np.minimum(spool + np.where(fine, fine_inc, step), cap), spool
             )
             new_prox, new_dist = coupled_joints(
                 new_spool,
@@ -193,33 +238,49 @@ class SimHand(Hand):
             pressures, depth = self._sense(w.hand_contacts(), rng)
             queries += 1
             for f in np.flatnonzero(active):
-                sensed = np.any(
-                    pressures[f * SENSORS_PER_FINGER : (f + 1) * SENSORS_PER_FINGER] > thr
-                )
+                sensed_prox, sensed_dist = finger_sensed(pressures, f)
+                sensed = sensed_prox or sensed_dist
+                touching = not np.isnan(target[f])
                 d_prox, d_dist = depth[f]
                 # A held proximal link may rest on something: only moving links count here.
                 d_moving = d_dist if blocked[f] else max(d_prox, d_dist)
                 if not fine[f] and (sensed or d_moving > 0.0):
                     fine[f] = True  # re-run this step finely from where the finger was
+                    reading[f], substep[f] = spool[f], 0
                     continue
-                if not sensed and d_dist > cfg.stall_depth_m:
-                    active[f], reasons[f] = False, STOP_STALL  # stays at its last pose
+                # Past its sensed contact a finger presses only as deep as the skin gives.
+                deepest = cfg.skin_depth_m if touching else stall
+                too_deep = d_dist > deepest or (blocked[f] and d_prox > deepest)
+                if touching and too_deep and fine_inc[f] > fine_step / 2**PRESS_HALVINGS:
+                    fine_inc[f] /= 2  # retry a shorter press
                     continue
-                if not sensed and d_prox > cfg.stall_depth_m:
+                if d_dist > deepest:  # the distal can go no deeper: stay at the last pose
+                    active[f], reasons[f] = False, STOP_CONTACT if touching else STOP_STALL
+                    continue
+                if d_prox > deepest:
                     if blocked[f]:
-                        active[f], reasons[f] = False, STOP_STALL
+                        active[f], reasons[f] = False, STOP_CONTACT if touching else STOP_STALL
                     else:
-                        # Hold the proximal where it was; the distal wraps on, coarsely
-                        # until it meets something.
-                        blocked[f], fine[f] = True, False
+                        # Hold the proximal where it was; the distal wraps on (coarsely until
+                        # it meets something, unless the finger is already in contact).
+                        blocked[f], fine[f] = True, touching
                     continue
                 spool[f], prox[f], dist[f] = new_spool[f], new_prox[f], new_dist[f]
-                if sensed:
+                if fine[f]:
+                    substep[f] += 1
+                    if substep[f] == cfg.substeps:  # a reading interval has passed
+                        reading[f], substep[f] = spool[f], 0
+                if sensed and not touching:
+                    touching = True
+                    target[f] = min(limit, reading[f] + cfg.post_contact_travel_rad)
+                if touching and not blocked[f] and (sensed_prox or d_prox > 0.0):
+                    blocked[f] = True  # the skin is far stiffer than the flexure
+                if touching and spool[f] >= target[f] - 1e-12:
                     active[f], reasons[f] = False, STOP_CONTACT
                 elif spool[f] >= limit - 1e-12 or (
                     blocked[f] and dist[f] >= self._distal_limit - 1e-12
                 ):
-                    active[f], reasons[f] = False, STOP_LIMIT
+                    active[f], reasons[f] = False, STOP_CONTACT if touching else STOP_LIMIT
 
         # Read the sensors at the final pose (as the real hand reports after the close).
         w.set_hand(w.preshape_angle, prox, dist)
@@ -291,7 +352,7 @@ class SimHand(Hand):
                 contacts.depth[sensing],
                 w.links.site_link,
                 sites,
-                self._site_radius,
+                cfg.spread_sigma_m,
                 cfg.contact_stiffness_n_per_m,
             )
         pressures = force * cfg.pressure_per_newton

@@ -11,7 +11,14 @@ from scipy.spatial.transform import Rotation
 
 from activetouch.config import SimConfig
 from activetouch.interfaces import SENSORS_PER_FINGER, Grasp, Pose
-from activetouch.sim.hand import STOP_CONTACT, STOP_LIMIT, STOP_STALL, SimHand, site_forces
+from activetouch.sim.hand import (
+    STOP_CONTACT,
+    STOP_LIMIT,
+    STOP_STALL,
+    SimHand,
+    site_forces,
+    spread_kernel,
+)
 from activetouch.sim.reflex_urdf import coupled_joints
 from activetouch.sim.world import SimArm, SimWorld
 
@@ -44,7 +51,7 @@ def fingers_touched(g: Grasp) -> set[int]:
     return {int(i) // SENSORS_PER_FINGER for i in g.sensor_ids if i < 27}
 
 
-def test_coupling_and_patch_assignment_are_pure_functions() -> None:
+def test_coupling_is_a_pure_function() -> None:
     prox, dist = coupled_joints(
         np.array([1.0, 1.0, 1.0]),
         np.array([0.0, 0.3, 0.0]),
@@ -55,20 +62,66 @@ def test_coupling_and_patch_assignment_are_pure_functions() -> None:
     )
     np.testing.assert_allclose(prox, [0.8, 0.3, 0.8])
     np.testing.assert_allclose(dist, [0.2, 0.7, 0.2])
-    sites = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.0, 0, 0]])
-    site_link = np.array([1, 1, 2])
-    radius = np.full(3, 0.006)
-    # Two points on link 1 near site 1, one on link 2 but far from its site: not sensed.
+
+
+def test_site_forces_spread_each_contact_over_its_own_links_sites() -> None:
+    sigma, k = 0.005, 1000.0
+    np.testing.assert_allclose(spread_kernel(np.array([0.0, sigma]), sigma), [1.0, np.exp(-0.5)])
+    sites = np.array([[0.0, 0, 0], [0.0079, 0, 0], [0.0, 0, 0], [0.0237, 0, 0]])
+    site_link = np.array([1, 1, 2, 1])
+    # Right over site 0 (link 1): site 0 reads the full force, the neighbour 7.9 mm away a
+    # share, the site 3 pitches away ~nothing, and site 2 (same place, other link) nothing.
+    f = site_forces(np.array([1]), np.zeros((1, 3)), np.array([0.002]), site_link, sites, sigma, k)
+    share = np.exp(-0.5 * (0.0079 / sigma) ** 2)
+    np.testing.assert_allclose(f[:3], [2.0, 2.0 * share, 0.0], rtol=1e-12)
+    assert 0.0 < f[3] < 1e-4 * f[0]
+    # Forces of several points add up; a point on link 2 loads only link 2's site.
+    pts = np.array([[0.004, 0.0, 0.0], [0.004, 0.003, 0.0], [0.0, 0.0, 0.001]])
     f = site_forces(
-        np.array([1, 1, 2]),
-        np.array([[0.009, 0, 0], [0.012, 0, 0], [0.0, 0.02, 0]]),
-        np.array([0.001, 0.002, 0.005]),
-        site_link,
-        sites,
-        radius,
-        1000.0,
+        np.array([1, 1, 2]), pts, np.array([0.001, 0.001, 0.003]), site_link, sites, sigma, k
     )
-    np.testing.assert_allclose(f, [0.0, 3.0, 0.0])
+    d = np.linalg.norm(pts[:2, None, :] - sites[None, [0, 1, 3], :], axis=2)
+    np.testing.assert_allclose(f[[0, 1, 3]], spread_kernel(d, sigma).sum(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(f[2], 3.0 * spread_kernel(0.001, sigma))
+    assert (
+        site_forces(
+            np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), site_link, sites, sigma, k
+        ).tolist()
+        == [0.0] * 4
+    )
+
+
+def _press_proximal_site(depth: float, noise_std: float = 0.0) -> np.ndarray:
+    """Pressures with finger 0 lying open and a small sphere pressed `depth` into the skin
+    right over its proximal sensor 1 (nothing else touches)."""
+    cfg = SimConfig(noise_std=noise_std)
+    with SimWorld(cfg) as w:
+        hand = SimHand(w)
+        r = 0.015
+        w.place_primitive("sphere", r)
+        site = w.sensor_sites_hand()[1]
+        centre = site + np.array([0.0, 0.0, r - depth])  # on the tactile (+z) side
+        # Hand +z down (TOP: hand x = world x, y = -y, z = -z): the object-frame origin is
+        # at the sphere's centre.
+        w.set_wrist(Pose(centre * np.array([-1.0, 1.0, 1.0]), TOP))
+        contacts = w.hand_contacts()
+        assert set(contacts.link.tolist()) == {w.links.site_link[1]}, contacts
+        return hand.state().pressures
+
+
+def test_a_light_touch_registers_on_one_sensor_a_firm_one_on_its_neighbours_too() -> None:
+    thr = SimConfig().contact_threshold
+    light = _press_proximal_site(0.0003)
+    assert np.flatnonzero(light > thr).tolist() == [1]
+    firm = _press_proximal_site(0.0015)
+    assert np.flatnonzero(firm > thr).tolist() == [0, 1, 2]
+    assert firm[1] > firm[0] > thr and abs(firm[0] - firm[2]) < 1e-6 * firm[1]
+    # Three pitches away (sensor 4), on the distal link and elsewhere: no load at all.
+    assert firm[4] < 1e-3 * firm[1]
+    np.testing.assert_array_equal(firm[5:], 0.0)
+    # Noise does not change that picture.
+    noisy = _press_proximal_site(0.0015, noise_std=2.0)
+    assert np.flatnonzero(noisy > thr).tolist() == [0, 1, 2]
 
 
 def test_each_finger_stops_on_its_own_contact(rig) -> None:
@@ -150,6 +203,52 @@ def test_empty_table_gives_no_contact(rig) -> None:
     assert g.preshape == 0.8
     st = hand.state()
     assert not st.contact.any() and st.pressures.shape == (38,)
+
+
+def test_after_a_proximal_contact_the_distal_wraps_on_to_the_commanded_spool() -> None:
+    # A thin vertical rod across the closing planes of fingers 0 and 1 (hand y = world z), 4 cm
+    # out along the open fingers and 3 cm above them: their proximal links meet it first.
+    xr, zr = 0.0604 + 0.04, 0.0816 + 0.03
+    pose = Pose([-zr, -xr, 0.0], SIDE)
+    runs = {}
+    for travel in (0.0, 0.05):
+        with SimWorld(SimConfig(post_contact_travel_rad=travel)) as w:
+            w.place_primitive("cylinder", (0.006, 0.3))
+            hand = SimHand(w)
+            runs[travel] = (grasp_at(SimArm(w), hand, pose), hand.last_close)
+    c0, (g1, c1) = runs[0.0][1], runs[0.05]
+    k, step = SimConfig().flexure_coupling, SimConfig().spool_step_rad
+    for f in (0, 1):
+        assert c0.stop_reasons[f] == c1.stop_reasons[f] == STOP_CONTACT
+        ids = g1.sensor_ids[g1.sensor_ids // SENSORS_PER_FINGER == f] % SENSORS_PER_FINGER
+        assert len(ids) and ids.max() < 5  # proximal sensors only
+        # Same proximal angle: it holds where it touched ...
+        assert c1.proximal[f] == pytest.approx(c0.proximal[f], abs=1e-12)
+        # ... and the tendon runs on to the end of the step it was commanded, the distal
+        # taking that travel (wrapped beyond the free coupling).
+        assert c1.spool[f] == pytest.approx(step * round(c1.spool[f] / step), abs=1e-9)
+        assert c1.spool[f] > c0.spool[f] + 1e-6
+        assert c1.distal[f] - c0.distal[f] == pytest.approx(c1.spool[f] - c0.spool[f])
+        assert c1.distal[f] > k * c1.proximal[f] + 1e-3
+
+
+def test_post_contact_travel_presses_firmer_but_no_deeper_than_the_skin() -> None:
+    r = 0.06
+    for gap in (0.01, 0.02, 0.03):
+        pose = Pose([-(r + PAD + gap), 0, 0], SIDE)
+        seen = {}
+        for travel in (0.0, 0.05):
+            with SimWorld(SimConfig(post_contact_travel_rad=travel)) as w:
+                w.place_primitive("sphere", r)
+                hand = SimHand(w)
+                g = grasp_at(SimArm(w), hand, pose)
+                assert hand.last_close.stop_reasons == (STOP_CONTACT,) * 3
+                deepest = w.hand_contacts().depth.max()
+                assert deepest <= hand.cfg.skin_depth_m + 1e-9
+                seen[travel] = (g.pressures.sum(), g.n_contacts, deepest, hand.last_close.spool)
+        (p0, n0, d0, s0), (p1, n1, d1, s1) = seen[0.0], seen[0.05]
+        assert p1 > p0 and n1 >= n0 >= 3 and d1 >= d0
+        assert np.all(s1 >= s0) and np.any(s1 > s0)
 
 
 def test_state_reports_the_grasp_contacts(rig) -> None:
