@@ -325,8 +325,19 @@ def test_bench_main_writes_its_figures(tmp_path) -> None:
     from activetouch.sim import bench
 
     out = tmp_path / "sim.json"
-    assert bench.main(["--grasps", "4", "--json", str(out)]) == 0
+    argv = ["--grasps", "4", "--grid-object", "primitive:sphere", "--set", "grid.step_deg=45"]
+    assert bench.main([*argv, "--json", str(out)]) == 0
     figures = json.loads(out.read_text())
     assert figures["grasps"]["poses"] == 4
     assert figures["grasps"]["grasped"] + figures["grasps"]["unreachable"] == 4
     assert figures["peak_rss_mb"] > 0
+    grid = figures["grid"]
+    assert grid["object"] == "primitive:sphere" and grid["grasped"] > 0
+    assert grid["grasped"] == round((1 - grid["unreachable_fraction"]) * grid["poses"])
+    histogram = [int(v) for v in grid["contacts_histogram"].split()]
+    assert sum(histogram) == grid["grasped"] and len(histogram) == grid["max_contacts"] + 1
+    assert grid["mean_contacts"] == pytest.approx(
+        sum(i * v for i, v in enumerate(histogram)) / grid["grasped"]
+    )
+    # Enclosing a sphere touches it with every finger: every grasp gives triangles.
+    assert grid["grasps_with_3plus_contacts"] == 1.0 and grid["mean_fingers_touching"] > 2.5
