@@ -202,19 +202,19 @@ class SimHand(Hand):
         substep = np.zeros(N_FINGERS, dtype=np.int64)
         reasons = [""] * N_FINGERS
 
-        def finger_sensed(p: np.ndarray, f: int) -> tuple[bool, bool]:
-            """Whether finger f's proximal and distal sensors read over threshold."""
-            base = f * SENSORS_PER_FINGER
-            return (
-                bool(np.any(p[base : base + N_PROXIMAL_SENSORS] > thr)),
-                bool(np.any(p[base + N_PROXIMAL_SENSORS : base + SENSORS_PER_FINGER] > thr)),
+        def links_sensed(p: np.ndarray) -> np.ndarray:
+            """(3, 2) bool: each finger's proximal / distal sensors read over threshold."""
+            over = p[:N_FINGER_SENSORS].reshape(N_FINGERS, SENSORS_PER_FINGER) > thr
+            return np.column_stack(
+                [over[:, :N_PROXIMAL_SENSORS].any(axis=1), over[:, N_PROXIMAL_SENSORS:].any(axis=1)]
             )
 
         w.flush_contacts()
         pressures, depth = self._sense(w.hand_contacts(), rng)
         queries = 1
+        link_sensed = links_sensed(pressures)
         for f in range(N_FINGERS):  # a finger already touching does not move
-            if any(finger_sensed(pressures, f)):
+            if link_sensed[f].any():
                 active[f], reasons[f] = False, STOP_CONTACT
             elif spool[f] >= limit - 1e-12:
                 active[f], reasons[f] = False, STOP_LIMIT
@@ -237,8 +237,9 @@ class SimHand(Hand):
             w.set_hand(w.preshape_angle, new_prox, new_dist)
             pressures, depth = self._sense(w.hand_contacts(), rng)
             queries += 1
-            for f in np.flatnonzero(active):
-                sensed_prox, sensed_dist = finger_sensed(pressures, f)
+            link_sensed = links_sensed(pressures).tolist()
+            for f in np.flatnonzero(active).tolist():
+                sensed_prox, sensed_dist = link_sensed[f]
                 sensed = sensed_prox or sensed_dist
                 touching = not np.isnan(target[f])
                 d_prox, d_dist = depth[f]
