@@ -128,8 +128,9 @@ def sd_notify(state: str) -> bool:
         addr = "\0" + addr[1:]
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as s:
+            s.setblocking(False)  # a receiver that does not read must never stall the daemon
             s.connect(addr)
-            s.sendall(state.encode())
+            s.send(state.encode())
         return True
     except OSError as e:
         log.warning("sd_notify failed", extra={"state": state, "error": str(e)})
@@ -597,7 +598,7 @@ class RecognitionService:
             self.model = load_trained(model_dir)
             self._kernel = self.model.classifier.kernel()
             self.model_desc = (
-                f"{model_dir} ({', '.join(self.model.class_names)}; "
+                f"{model_dir.resolve()} ({', '.join(self.model.class_names)}; "
                 f"dataset {self.model.dataset_checksum[:12]})"
             )
             log.info(
@@ -857,13 +858,13 @@ class RecognitionService:
             try:
                 self._serve(running)
             finally:
-                with self._cv:
-                    self._running = None
-                    self._cv.notify_all()
+                self._finish(running)
 
     def _serve(self, running: _Running) -> None:
         job = running.job
         with job.query as query:
+            result: RecognizeResult | None = None
+            error: Exception | None = None
             try:
                 waited = time.monotonic() - job.arrived
                 if job.budget is not None and waited > job.budget:
@@ -872,7 +873,15 @@ class RecognitionService:
                         f"longer than its caller's timeout ({job.budget:g} s); not started"
                     )
                 result = self._recognize(running)
-                query.reply(self.keys.recognize, encode(Reply.success(result)), encoding=JSON)
+            except Exception as e:
+                error = e
+            # Done before the caller hears of it: a status it asks next shows no session.
+            self._finish(running)
+            if result is not None:
+                try:
+                    query.reply(self.keys.recognize, encode(Reply.success(result)), encoding=JSON)
+                except Exception:
+                    log.warning("cannot send the result", exc_info=True)
                 log.info(
                     "recognition done",
                     extra={
@@ -885,19 +894,30 @@ class RecognitionService:
                         "elapsed_s": round(result.elapsed_s, 3),
                     },
                 )
-            except Exception as e:
-                if isinstance(e, ActiveTouchError | ValueError):
-                    log.warning(
-                        "recognition failed",
-                        extra={
-                            "session": job.session_id,
-                            "error_type": type(e).__name__,
-                            "error": str(e),
-                        },
-                    )
-                else:
-                    log.exception("recognition crashed", extra={"session": job.session_id})
-                _reply_error(query, e)
+                return
+            assert error is not None
+            if isinstance(error, ActiveTouchError | ValueError):
+                log.warning(
+                    "recognition failed",
+                    extra={
+                        "session": job.session_id,
+                        "error_type": type(error).__name__,
+                        "error": str(error),
+                    },
+                )
+            else:
+                log.error(
+                    "recognition crashed",
+                    exc_info=error,
+                    extra={"session": job.session_id},
+                )
+            _reply_error(query, error)
+
+    def _finish(self, running: _Running) -> None:
+        with self._cv:
+            if self._running is running:
+                self._running = None
+                self._cv.notify_all()
 
     def _recognize(self, running: _Running) -> RecognizeResult:
         from activetouch.service.session import Progress as SessionProgress
