@@ -132,12 +132,6 @@ class SessionConfig:
 
 
 @dataclass
-class Config:
-    recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
-    observation: ObservationConfig = field(default_factory=ObservationConfig)
-    planner: PlannerConfig = field(default_factory=PlannerConfig)
-    grid: GridConfig = field(default_factory=GridConfig)
-@dataclass
 class ServiceConfig:
     """Recognition daemon (`activetouch serve`) and its Zenoh clients (docs/api.md)."""
 
@@ -159,15 +153,21 @@ class ServiceConfig:
     sim_motion_delay_s: float = 0.0
 
 
+@dataclass
+class Config:
+    recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
     session: SessionConfig = field(default_factory=SessionConfig)
     sim: SimConfig = field(default_factory=SimConfig)
+    service: ServiceConfig = field(default_factory=ServiceConfig)
 
 
 def _coerce(value: Any, tp: Any, key: str) -> Any:
     origin = typing.get_origin(tp)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(tp) if a is not type(None)]
-    service: ServiceConfig = field(default_factory=ServiceConfig)
         if value is None:
             return None
         return _coerce(value, args[0], key)
