@@ -928,10 +928,13 @@ class RecognitionService:
         if model is None:  # unloaded since admission (cannot happen today; keep the text)
             raise DataError(f"no model: run `activetouch train` ({self.model_error})")
         sid = job.session_id
+        support_z: float | None = None  # the table plane in the object frame, when known
         if self.sim is not None:
             running.interlock.check("placing the object")
             assert req.object is not None
-            self.sim.place(req.object, job.seed)
+            placed = self.sim.place(req.object, job.seed)
+            # The twin stands the object on the table, centred: as recognize_in_twin does.
+            support_z = -float(placed.extents[2]) / 2
         planner_cfg = dataclasses.replace(
             cfg.planner,
             horizon=req.horizon or cfg.planner.horizon,
@@ -972,6 +975,7 @@ class RecognitionService:
             rng,
             on_progress,
             running.cancel,
+            support_z=support_z,
         )
         try:
             res = session.run()
