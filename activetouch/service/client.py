@@ -15,11 +15,16 @@ Errors the daemon reports come back as exceptions: `MessageError` (malformed req
 
 from __future__ import annotations
 
+import os
 import queue
+import signal
+import subprocess
+import sys
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager, suppress
+from dataclasses import dataclass
 from pathlib import Path
 
 import msgspec
@@ -267,3 +272,72 @@ def describe_status(st: Status) -> list[str]:
     if st.queued:
         lines.append(f"  queued  {st.queued}")
     return lines
+
+
+# --------------------------------------------------------------------------- a local daemon
+
+
+@dataclass
+class LocalDaemon:
+    """A daemon this process started (`local_daemon`): its endpoint and process."""
+
+    endpoint: str
+    robot: str
+    proc: subprocess.Popen
+    log: Path | None
+
+
+@contextmanager
+def local_daemon(
+    data: str | Path | None,
+    *,
+    robot: str = "sim",
+    args: Sequence[str] = (),
+    log: Path | None = None,
+    start_timeout: float = 120.0,
+    stop_timeout: float = 10.0,
+) -> Iterator[LocalDaemon]:
+    """Run ``python -m activetouch serve --sim`` on a free 127.0.0.1 port until the block ends.
+
+    Waits for the daemon's liveliness token; afterwards sends SIGTERM to its pid and waits for
+    it (SIGKILL if it has not exited within `stop_timeout`). Its log goes to `log` (or is
+    discarded)."""
+    from activetouch.service.zenoh_session import free_tcp_port, loopback_endpoint
+
+    endpoint = loopback_endpoint(free_tcp_port())
+    cmd = [sys.executable, "-m", "activetouch", "serve", "--sim", "--robot", robot]
+    cmd += ["--listen", endpoint, *(["--data", str(data)] if data else []), *args]
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("NOTIFY_", "WATCHDOG_"))}
+    out = open(log, "w") if log else subprocess.DEVNULL  # noqa: SIM115 - closed below
+    proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
+    try:
+        deadline = time.monotonic() + start_timeout
+        with ZenohSession(client_settings([endpoint])) as zs:
+            client = zs.closing(DaemonClient(zs.session, robot))
+            while True:
+                if proc.poll() is not None:
+                    tail = log.read_text()[-2000:] if log else ""
+                    raise ActiveTouchError(
+                        f"the daemon exited with status {proc.returncode} while starting"
+                        + (f"; its log ({log}) ends:\n{tail}" if log else "")
+                    )
+                try:
+                    client.wait_alive(min(1.0, max(0.01, deadline - time.monotonic())))
+                    break
+                except NodeUnavailableError:
+                    if time.monotonic() > deadline:
+                        raise NodeUnavailableError(
+                            f"the daemon (pid {proc.pid}) did not come up within "
+                            f"{start_timeout:g} s"
+                        ) from None
+        yield LocalDaemon(endpoint, robot, proc, log)
+    finally:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(stop_timeout)
+            except subprocess.TimeoutExpired:
+                os.kill(proc.pid, signal.SIGKILL)
+                proc.wait()
+        if out is not subprocess.DEVNULL:
+            out.close()

@@ -342,6 +342,16 @@ class _PacedArm(Arm):
         self.inner.stop()
 
 
+def place_in_twin(world: Any, hand: Any, spec: Any, seed: int) -> None:
+    """Put `spec` on the table of a used twin and bring it back to the state of a fresh one
+    (`open_twin(spec, cfg, seed)`), so a recognition repeats the in-process run exactly."""
+    world.set_hand(0.0, np.zeros(3), np.zeros(3))
+    world.open_fingers()
+    world.set_wrist(Pose(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0])))
+    world.place(spec)
+    hand.reseed(seed)
+
+
 class SimNode(_ServedNode):
     """Twin only: ``sim/place`` puts a library object on the table (and reseeds the hand)."""
 
@@ -364,13 +374,9 @@ class SimNode(_ServedNode):
 
     def _place(self, req: SimPlaceRequest) -> SimPlaceResult:
         spec = self.library.get(req.object)  # DataError naming the object and the known ones
-        w = self.world
-        # Back to the state of a fresh world, so a recognition repeats the in-process one.
-        w.set_hand(0.0, np.zeros(3), np.zeros(3))
-        w.open_fingers()
-        w.set_wrist(Pose(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0])))
-        w.place(spec)
-        self.hand.reseed(self.hand.cfg.seed if req.seed is None else req.seed)
+        place_in_twin(
+            self.world, self.hand, spec, self.hand.cfg.seed if req.seed is None else req.seed
+        )
         log.info("object placed", extra={"object": spec.name, "seed": req.seed})
         return SimPlaceResult(object=spec.name, extents=tuple(float(x) for x in spec.extents))
 
@@ -543,6 +549,8 @@ class _Running:
     interlock: _Interlock
     started: float  # wall clock
     move: int = 0
+    place_s: float = 0.0  # for the log
+    session_s: float = 0.0
 
 
 def _probability(p: float) -> float:
@@ -891,7 +899,10 @@ class RecognitionService:
                         "probability": round(result.probability, 4),
                         "grasps": result.moves,
                         "stop_reason": result.stop_reason,
-                        "elapsed_s": round(result.elapsed_s, 3),
+                        "elapsed_s": round(result.elapsed_s, 4),
+                        "place_s": round(running.place_s, 4),
+                        "session_s": round(running.session_s, 4),
+                        "planning_s": round(result.planning_s, 4),
                     },
                 )
                 return
@@ -932,7 +943,9 @@ class RecognitionService:
         if self.sim is not None:
             running.interlock.check("placing the object")
             assert req.object is not None
+            t_place = time.perf_counter()
             placed = self.sim.place(req.object, job.seed)
+            running.place_s = time.perf_counter() - t_place
             # The twin stands the object on the table, centred: as recognize_in_twin does.
             support_z = -float(placed.extents[2]) / 2
         planner_cfg = dataclasses.replace(
@@ -977,8 +990,10 @@ class RecognitionService:
             running.cancel,
             support_z=support_z,
         )
+        t_run = time.perf_counter()
         try:
             res = session.run()
+            running.session_s = time.perf_counter() - t_run
         except Exception as e:
             if running.interlock.reason is not None:
                 raise RecognitionAbortedError(

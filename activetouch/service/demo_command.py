@@ -1,7 +1,9 @@
 """`activetouch demo`: the main job for a new user, in the twin.
 
 Trains on the paper's 7 simulated objects when no model exists, recognises one object with
-live progress, then evaluates tree / greedy / random on every object and writes the report."""
+live progress through the recognition daemon (`activetouch serve --sim` started as a
+subprocess on a free loopback port, asked over Zenoh, stopped by SIGTERM), then evaluates
+tree / greedy / random on every object in-process and writes the report."""
 
 from __future__ import annotations
 
@@ -30,8 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from activetouch.service.client import local_daemon, open_client, session_progress
     from activetouch.service.eval_command import evaluate
-    from activetouch.service.recognize import load_trained, model_path, recognize_in_twin
+    from activetouch.service.messages import RecognizeRequest
+    from activetouch.service.recognize import load_trained, model_path
     from activetouch.service.recognize_command import format_progress
     from activetouch.service.train_command import train
 
@@ -45,18 +49,38 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"using the model at {mdir} (delete it to retrain)")
     else:
         train(root, list(PAPER_SIM_OBJECTS), args.config, args.overrides, None, None, None, console)
-    model = load_trained(mdir)
+    load_trained(mdir)
+    ObjectLibrary(paths.objects_dir(root)).get(args.object)  # unknown object: say so now
+    out = Path(args.out) if args.out else root / "reports" / "demo"
+    out.mkdir(parents=True, exist_ok=True)
 
-    console.print(Rule(f"2. recognising the {args.object} by touch (tree policy)"))
-    res = recognize_in_twin(
-        model,
-        ObjectLibrary(paths.objects_dir(root)),
-        args.object,
-        "tree",
-        args.seed,
-        cfg,
-        on_progress=lambda ev: console.print(format_progress(ev), highlight=False),
-    )
+    console.print(Rule(f"2. recognising the {args.object} by touch, through the daemon (tree)"))
+    serve_args = ["--model", str(mdir)]
+    if args.config:
+        serve_args += ["--config", str(args.config)]
+    for item in args.overrides:
+        serve_args += ["--set", item]
+    log = out / "daemon.log"
+    console.print("starting `python -m activetouch serve --sim` ...")
+    with local_daemon(root, robot=cfg.service.robot, args=serve_args, log=log) as d:
+        console.print(
+            f"daemon pid {d.proc.pid} serving robot {d.robot} on {d.endpoint} (log: {log})"
+        )
+        with open_client([d.endpoint], d.robot, timeout=cfg.service.node_timeout_s) as client:
+            res = client.recognize(
+                RecognizeRequest(
+                    policy="tree",
+                    max_moves=cfg.session.max_moves,
+                    seed=args.seed,
+                    object=args.object,
+                ),
+                on_progress=lambda ev: console.print(
+                    format_progress(session_progress(ev)), highlight=False
+                ),
+                timeout=cfg.service.request_timeout_s,
+            )
+        console.print(f"stopping the daemon (SIGTERM to pid {d.proc.pid}) ...")
+    console.print(f"daemon exited with status {d.proc.returncode}")
     verdict = "[green]correct[/]" if res.label == args.object else "[red]wrong[/]"
     console.print(
         f"recognised: [bold]{res.label}[/] (p = {res.probability:.2f}) after {res.moves} grasps "
@@ -64,7 +88,6 @@ def run(args: argparse.Namespace) -> int:
     )
 
     console.print(Rule("3. tree vs greedy vs random on every object"))
-    out = Path(args.out) if args.out else root / "reports" / "demo"
     evaluate(
         root,
         mdir,
