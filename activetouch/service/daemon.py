@@ -612,6 +612,7 @@ class RecognitionService:
             log.info(
                 "model loaded", extra={"model": str(model_dir), "classes": self.model.n_classes}
             )
+            self._warm_up()
         except ActiveTouchError as e:
             self.model_error = str(e)
             log.warning("no model", extra={"model": str(model_dir), "error": str(e)})
@@ -637,6 +638,29 @@ class RecognitionService:
             threading.Thread(target=self._runner_loop, name="activetouch-runner", daemon=True),
             threading.Thread(target=self._estop_loop, name="activetouch-estop", daemon=True),
         ]
+
+    def _warm_up(self) -> None:
+        """Plan once now, so the first request does not wait for numba to load (or compile)
+        the tree search."""
+        t = time.perf_counter()
+        try:
+            policy = make_policy(
+                "tree",
+                dataclasses.replace(self.cfg.planner, horizon=1, simulations=2),
+                self.model.observation,
+                self._kernel,
+            )
+            state = PlanningState(
+                pose=0,
+                visited=np.array([0], dtype=np.int64),
+                counts=np.zeros(self.model.spec.n_bins),
+                cells=np.zeros(0, dtype=np.int64),
+            )
+            policy.plan(state, np.random.default_rng(0))
+        except Exception as e:  # best effort: the first request then pays instead
+            log.debug("planner warm-up failed", extra={"error": str(e)})
+            return
+        log.info("planner warmed up", extra={"s": round(time.perf_counter() - t, 3)})
 
     @property
     def node_names(self) -> tuple[str, ...]:

@@ -246,6 +246,25 @@ def test_bad_config_is_one_line_naming_file_and_key(
     assert "Traceback" not in err
 
 
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
+
+
+def test_deploy_files_are_valid() -> None:
+    import zenoh
+
+    from activetouch.config import load_config
+    from activetouch.service.daemon import check_service_config
+
+    cfg = load_config(DEPLOY / "activetouch.toml")  # every key known, every type right
+    check_service_config(cfg.service)
+    assert cfg.service.listen == ["tcp/127.0.0.1:7447"]  # loopback unless told otherwise
+    conf = zenoh.Config.from_file(str(DEPLOY / "zenoh-tls-acl.json5"))  # Zenoh's own schema
+    assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
+    unit = (DEPLOY / "activetouch.service").read_text()
+    for line in ("Type=notify", "NotifyAccess=main", "WatchdogSec=", "Restart=on-failure"):
+        assert f"\n{line}" in unit, line
+
+
 # --------------------------------------------------------------------------- the daemon
 
 
