@@ -70,6 +70,7 @@ class RecognitionAbortedError(ActiveTouchError):
 
 
 _PROGRESS = "progress"
+_GONE_GRACE_S = 2.0  # after the daemon's token drops, wait this long for its last answer
 
 
 def client_settings(
@@ -153,16 +154,18 @@ class DaemonClient(_RemoteNode):
                 raise NodeUnavailableError(f"cannot query {self.keys.recognize}: {e}") from None
             deadline = start + timeout + _GRACE_S
             reply: Reply | None = None
+            gone = False
             while True:
                 try:
                     item = q.get(timeout=max(0.0, deadline - time.monotonic()))
                 except queue.Empty:
                     item = _DONE
                 if item is _GONE:
-                    raise NodeUnavailableError(
-                        f"the recognition daemon of robot {self.robot!r} went away during "
-                        f"recognition {sid} (its liveliness token {self.alive_key} dropped)"
-                    )
+                    # A daemon shutting down drops its token first and then answers (why it
+                    # stopped): wait a moment for that answer; a crashed one sends none.
+                    gone = True
+                    deadline = min(deadline, time.monotonic() + _GONE_GRACE_S)
+                    continue
                 if isinstance(item, tuple) and item[0] == _PROGRESS:
                     if on_progress is not None:
                         on_progress(item[1])
@@ -174,6 +177,11 @@ class DaemonClient(_RemoteNode):
                     continue
                 if item is _DONE:
                     break
+            if reply is None and gone:
+                raise NodeUnavailableError(
+                    f"the recognition daemon of robot {self.robot!r} went away during "
+                    f"recognition {sid} (its liveliness token {self.alive_key} dropped)"
+                )
             if reply is None:
                 if time.monotonic() - start < 0.9 * timeout:
                     raise NodeUnavailableError(

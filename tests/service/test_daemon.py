@@ -367,11 +367,20 @@ def test_errors_from_the_daemon_keep_their_type(client: DaemonClient) -> None:
     assert client.status().session is None
 
 
-def test_sigterm_mid_recognition_exits_cleanly(trained_home: Path, tmp_path: Path) -> None:
+def test_queue_then_sigterm_mid_recognition_exits_cleanly(
+    trained_home: Path, tmp_path: Path
+) -> None:
+    """service.max_queued = 1: a second request waits, a third is busy. Then SIGTERM while the
+    first runs: the daemon exits with status 0 within 5 s and both callers get an error."""
     port = free_tcp_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     d = DaemonProcess(
-        serve_args(trained_home, port, "--set", "service.sim_motion_delay_s=0.2"),
+        serve_args(
+            trained_home,
+            port,
+            *("--set", "service.sim_motion_delay_s=0.2", "--set", "session.stable_grasps=100"),
+            *("--set", "service.max_queued=1"),
+        ),
         tmp_path / "daemon.log",
     )
     try:
@@ -379,13 +388,22 @@ def test_sigterm_mid_recognition_exits_cleanly(trained_home: Path, tmp_path: Pat
         with open_client([endpoint], ROBOT) as c:
             req = RecognizeRequest(policy="tree", max_moves=40, seed=2, object="cup")
             t, out, _seen, _samples = first_progress_then(c, req)
+            queued_req = RecognizeRequest(policy="greedy", max_moves=3, seed=1, object="sphere")
+            t2, out2 = run_in_thread(lambda: c.recognize(queued_req, timeout=60.0))
+            while c.status().queued < 1:  # the second request is in the queue
+                time.sleep(0.05)
+            with pytest.raises(BusyError, match=r"1 are queued \(service.max_queued = 1\)"):
+                c.recognize(RecognizeRequest(policy="tree", max_moves=3, seed=1, object="cup"))
             assert c.status().session is not None  # mid-recognition
             d.signal(signal.SIGTERM)
             assert d.proc.wait(5.0) == 0, d.text()  # TimeoutExpired if it hangs
             t.join(10.0)
-            assert not t.is_alive()
+            t2.join(10.0)
+            assert not t.is_alive() and not t2.is_alive()
         err = out.get("error")
         assert isinstance(err, RecognitionAbortedError | NodeUnavailableError), out
+        err2 = out2.get("error")
+        assert isinstance(err2, RecognitionAbortedError | NodeUnavailableError), out2
         log = d.text()
         assert "shutting down" in log and "stopped" in log
         assert "Traceback" not in log
