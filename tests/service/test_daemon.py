@@ -61,10 +61,10 @@ class DaemonProcess:
         if self.running():
             os.kill(self.pid, sig)
 
-    def stop(self, timeout: float = 5.0) -> int:
-        """SIGTERM and wait; the exit code (raises if it does not exit within `timeout`)."""
+    def stop(self, timeout: float = 5.0, sig: int = signal.SIGTERM) -> int:
+        """`sig` and wait; the exit code (raises if it does not exit within `timeout`)."""
         try:
-            self.signal(signal.SIGTERM)
+            self.signal(sig)
             return self.proc.wait(timeout)
         finally:
             self.kill()
@@ -489,6 +489,6 @@ def test_daemon_without_model_says_so(tmp_path: Path) -> None:
             assert "sim" not in st.nodes
             with pytest.raises(ActiveTouchError, match="no model: run `activetouch train`"):
                 c.recognize(RecognizeRequest(policy="tree", max_moves=3))
-        assert d.stop() == 0, d.text()
+        assert d.stop(sig=signal.SIGINT) == 0, d.text()  # Ctrl-C stops it cleanly too
     finally:
         d.kill()
