@@ -61,10 +61,10 @@ class DaemonProcess:
         if self.running():
             os.kill(self.pid, sig)
 
-    def stop(self, timeout: float = 5.0, sig: int = signal.SIGTERM) -> int:
-        """`sig` and wait; the exit code (raises if it does not exit within `timeout`)."""
+    def stop(self, timeout: float = 5.0, sig: int | None = None) -> int:
+        """`sig` (SIGTERM) and wait; the exit code (raises if it does not exit in `timeout`)."""
         try:
-            self.signal(sig)
+            self.signal(signal.SIGTERM if sig is None else sig)
             return self.proc.wait(timeout)
         finally:
             self.kill()
