@@ -31,6 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", metavar="DIR", default=None, help="model directory")
     p.add_argument("--out", metavar="DIR", required=True, help="report directory")
     p.add_argument("--workers", type=int, default=None, help="parallel processes")
+    p.add_argument(
+        "--stop-when-confident",
+        action="store_true",
+        help="end runs at the session's confidence rule (default: every run uses the whole "
+        "budget, the paper's protocol, so moves-until-correct compare policies fairly)",
+    )
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -48,9 +54,12 @@ def evaluate(
     workers: int | None,
     console: Console,
     command: str,
+    stop_when_confident: bool = False,
 ) -> dict:
     cfg = load_config(cfg_path, overrides)
     budget = max_moves if max_moves is not None else cfg.session.max_moves
+    if not stop_when_confident:
+        cfg.session.confidence = float("inf")  # no early stop: every run spends the budget
     for p in policies:
         check_request(p, budget)
     model = load_trained(model_dir)
@@ -69,6 +78,7 @@ def evaluate(
         runs = run_all(jobs, workers, lambda done, _: bar.update(task, completed=done))
     summary = summarise(runs, budget)
     summary["seconds"] = time.perf_counter() - t0
+    summary["stop_when_confident"] = stop_when_confident
     class_hist = {}
     if model.class_histograms is not None:
         class_hist = dict(zip(model.class_names, model.class_histograms, strict=True))
@@ -105,5 +115,6 @@ def run(args: argparse.Namespace) -> int:
         args.workers,
         Console(),
         "python -m activetouch " + shlex.join(args.argv),
+        args.stop_when_confident,
     )
     return 0

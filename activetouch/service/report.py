@@ -184,13 +184,19 @@ def write_report(
     contacts_figure(runs, objects, policies, out_dir / "contacts.png")
 
     seeds = sorted({r["seed"] for r in runs})
+    protocol = (
+        "runs end when confident"
+        if summary.get("stop_when_confident")
+        else "every run uses the whole budget (the paper's protocol)"
+    )
     lines = [
         "# Active tactile recognition in the twin",
         "",
         f"Produced by `{command}`",
         "",
         f"{len(objects)} objects x {len(policies)} policies x {len(seeds)} seeds, "
-        f"move budget {budget} grasps (the first, random grasp included). "
+        f"move budget {budget} grasps (the first, random grasp included), "
+        f"{protocol}. "
         "Moves are grasps until the label is correct; 'never' = not within the budget.",
         "",
     ]
