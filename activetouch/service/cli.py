@@ -18,13 +18,13 @@ from activetouch.errors import ActiveTouchError
 
 # Modules that register sub-commands, in the order `--help` lists them.
 COMMAND_MODULES: tuple[str, ...] = (
-    "activetouch.service.demo_command",
-    "activetouch.service.bench_command",
-    "activetouch.service.objects_command",
-    "activetouch.service.train_command",
-    "activetouch.service.recognize_command",
-    "activetouch.service.eval_command",
-    "activetouch.service.serve_command",
+    "activetouch.service.commands.demo",
+    "activetouch.service.commands.bench",
+    "activetouch.service.commands.objects",
+    "activetouch.service.commands.train",
+    "activetouch.service.commands.recognize",
+    "activetouch.service.commands.eval",
+    "activetouch.service.commands.serve",
 )
 
 

@@ -1,6 +1,6 @@
 """`activetouch serve` (the daemon) and its small clients `status`, `cancel`, `estop`.
 
-`activetouch recognize --connect ...` (recognize_command.py) is the recognition client.
+`activetouch recognize --connect ...` (commands/recognize.py) is the recognition client.
 Clients find the daemon at `--connect ENDPOINT` (repeatable), or else at the endpoints the
 daemon of the same configuration listens on (``service.listen``, default tcp/127.0.0.1:7447).
 """

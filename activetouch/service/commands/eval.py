@@ -14,10 +14,10 @@ from activetouch import paths
 from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.planning.policies import POLICY_NAMES
+from activetouch.service.commands.train import parse_objects
 from activetouch.service.evaluation import make_jobs, parse_seeds, run_all, summarise
 from activetouch.service.recognize import check_request, load_trained, model_path
 from activetouch.service.report import write_report
-from activetouch.service.train_command import parse_objects
 
 
 def register(sub: argparse._SubParsersAction) -> None:

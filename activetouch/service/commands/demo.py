@@ -33,11 +33,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from activetouch.service.client import local_daemon, open_client, session_progress
-    from activetouch.service.eval_command import evaluate
+    from activetouch.service.commands.eval import evaluate
+    from activetouch.service.commands.recognize import format_progress
+    from activetouch.service.commands.train import train
     from activetouch.service.messages import RecognizeRequest
     from activetouch.service.recognize import load_trained, model_path
-    from activetouch.service.recognize_command import format_progress
-    from activetouch.service.train_command import train
 
     console = Console()
     root = paths.data_dir(args.data)

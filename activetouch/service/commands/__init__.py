@@ -1,0 +1,1 @@
+"""The `activetouch` sub-commands, one module each; each exposes `register(subparsers)`."""
