@@ -162,18 +162,20 @@ class RecognitionSession:
                     cells=state.cells,
                 )
 
-        # First grasp: a random training pose that can be reached.
-        order = self.rng.permutation(len(self._poses))
-        for pid in order:
-            if self.cancel.is_set() or res.skipped >= self.cfg.max_skips:
-                break
+        def attempt(pose_id: int) -> bool:
+            """Grasp at `pose_id`; an unreachable pose is skipped. True if it was grasped."""
             try:
-                grasp, pose = self._grasp_at(int(pid))
+                grasp, pose = self._grasp_at(pose_id)
             except UnreachableError:
-                skip(int(pid))
-                continue
-            observe(int(pid), grasp, pose)
-            break
+                skip(pose_id)
+                return False
+            observe(pose_id, grasp, pose)
+            return True
+
+        # First grasp: a random training pose that can be reached.
+        for pid in self.rng.permutation(len(self._poses)):
+            if self.cancel.is_set() or res.skipped >= self.cfg.max_skips or attempt(int(pid)):
+                break
 
         while state is not None:
             if self.cancel.is_set():
@@ -197,13 +199,7 @@ class RecognitionSession:
             for pid in plan.poses:
                 if self.cancel.is_set() or len(res.labels) >= self.cfg.max_moves:
                     break
-                try:
-                    grasp, pose = self._grasp_at(int(pid))
-                except UnreachableError:
-                    skip(int(pid))
-                    continue
-                observe(int(pid), grasp, pose)
-                if streak >= self.cfg.stable_grasps:
+                if attempt(int(pid)) and streak >= self.cfg.stable_grasps:
                     break
         if not res.stop_reason:
             res.stop_reason = "cancelled" if self.cancel.is_set() else "skips"
