@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
             session_cfg,
             np.random.default_rng(seed),
             lambda _ev: first or first.append(time.perf_counter() - t0),
-            support_z=-float(spec.extents[2]) / 2,
+            support_z=spec.support_z,
         ).run()
         total = time.perf_counter() - t0
         return {"first_s": first[0], "total_s": total, "labels": res.labels, "poses": res.pose_ids}

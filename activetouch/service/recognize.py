@@ -69,6 +69,6 @@ def recognize_in_twin(
             rng,
             on_progress,
             cancel,
-            support_z=-float(spec.extents[2]) / 2,
+            support_z=spec.support_z,
         )
         return session.run()

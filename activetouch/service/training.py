@@ -53,7 +53,7 @@ def _collect_one(
             grid,
             attrs={"extents": [float(v) for v in spec.extents], "set": spec.set},
             on_grasp=report,
-            support_z=-float(spec.extents[2]) / 2,  # the table, in the object frame
+            support_z=spec.support_z,
             support_margin_m=cfg.recognition.support_margin_m,
         )
 

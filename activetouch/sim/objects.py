@@ -94,6 +94,11 @@ class ObjectSpec:
     def height(self) -> float:
         return float(self.extents[2])
 
+    @property
+    def support_z(self) -> float:
+        """The table plane in the object frame: the object stands on it, centred."""
+        return -self.height / 2
+
 
 # --------------------------------------------------------------------------------------------
 # Geometry: lathe profiles, sweeps and their exact convex parts
