@@ -54,6 +54,10 @@ class PlannerConfig:
     exploration_c: float = 1.0
     lam: float = 0.5  # weight of movement cost against misclassification (Eq. 1)
     replan_every_grasp: bool = False
+    # Eq. 4 when some classes have no data for (action, cell): "renormalise" draws y among the
+    # classes that have data; "per_class" draws y from the full p(y|h) and lets that class
+    # back off to its action-only row, else observe nothing (docs/planner.md).
+    eq4_sampling: str = "renormalise"
 
 
 @dataclass

@@ -219,8 +219,14 @@ def _sample_outcome(
     S: np.ndarray,
     rows: np.ndarray,
     counters: np.ndarray,
+    per_class: bool,
 ) -> int:
-    """Eq. 4: an outcome id for taking `action` from conditioning `cell` (-1: none), or -1."""
+    """Eq. 4: an outcome id for taking `action` from conditioning `cell` (-1: none), or -1.
+
+    `per_class` False: y is drawn among the classes that have data for (a, cell) (else for a
+    alone), renormalising p(y|h) over them. True: y is drawn from the full p(y|h); that class
+    answers from its (a, cell) row, else its (a) row, else with nothing observed — so a class
+    without data cannot make another class's observation look certain."""
     (
         _edge_ptr,
         _edge_action,
@@ -241,6 +247,27 @@ def _sample_outcome(
         n_cells,
     ) = m
     n_classes = rows.shape[0]
+    if per_class:
+        p = _proba_scores(kern, hist, S)
+        u = np.random.random()
+        acc = 0.0
+        y = n_classes - 1
+        for k in range(n_classes):
+            acc += p[k]
+            if u < acc:
+                y = k
+                break
+        if 0 <= cell < n_cells:
+            r = _find_key(tally_key, (y * n_actions + action) * n_cells + cell)
+            if r >= 0:
+                counters[0] += 1
+                return _draw_in_row(tally_ptr, tally_out, tally_cum, r)
+        r = _find_key(marg_key, y * n_actions + action)
+        if r >= 0:
+            counters[1] += 1
+            return _draw_in_row(marg_ptr, marg_out, marg_cum, r)
+        counters[2] += 1
+        return -1
     found = 0
     use_marg = False
     if 0 <= cell < n_cells:
@@ -414,6 +441,7 @@ def _run_simulations(
     n_sims: int,
     c: float,
     lam: float,
+    per_class: bool,
     seed: int,
     nodes: tuple,
     recs: tuple,
@@ -494,7 +522,7 @@ def _run_simulations(
             e = rec_edge[rec]
             a = edge_action[e]
             move += action_cost[a]
-            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters)
+            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters, per_class)
             if o >= 0:
                 _scores_add(kern, out_ptr, out_bin, o, hist, S)
                 cell = out_cell[o]
@@ -534,7 +562,7 @@ def _run_simulations(
                 break
             a = edge_action[e]
             move += action_cost[a]
-            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters)
+            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters, per_class)
             if o >= 0:
                 _scores_add(kern, out_ptr, out_bin, o, hist, S)
                 cell = out_cell[o]
@@ -814,6 +842,7 @@ class TreeSearch:
         exploration_c: float = 1.0,
         lam: float = 0.5,
         keep_tree: bool = False,
+        per_class_backoff: bool = False,
     ) -> SearchResult:
         """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
 
@@ -869,6 +898,7 @@ class TreeSearch:
             np.int64(simulations),
             np.float64(exploration_c),
             np.float64(lam),
+            bool(per_class_backoff),
             np.int64(seed),
             nodes,
             recs,

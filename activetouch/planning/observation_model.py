@@ -679,6 +679,36 @@ def sample_outcome(
     return int(out[lo + k])
 
 
+def outcome_probabilities_per_class(
+    model: ObservationModel, cell: int, action: int, p_y: np.ndarray
+) -> np.ndarray:
+    """(O,) probabilities of each outcome under the per-class back-off reading of Eq. 4
+    (planner.eq4_sampling = "per_class"): class y, drawn from the full `p_y`, answers from its
+    (action, cell) row, else its (action) row, else with nothing; the mass of "nothing" is
+    1 - sum of the result."""
+    if not 0 <= action < model.n_actions:
+        raise IndexError(f"action {action} out of range [0, {model.n_actions})")
+    p = np.asarray(p_y, dtype=np.float64).reshape(-1)
+    if p.shape != (model.n_classes,) or np.any(p < 0) or not np.all(np.isfinite(p)):
+        raise ValueError(f"p_y must be {model.n_classes} non-negative probabilities, got {p}")
+    p = p / p.sum()
+    y = np.arange(model.n_classes, dtype=np.int64)
+    A, C = model.n_actions, model.n_cells
+    tally = _find(model.tally_key, (y * A + action) * C + cell) if 0 <= cell < C else -(y + 1)
+    marg = _find(model.marg_key, y * A + action)
+    probs = np.zeros(model.n_outcomes)
+    for k in range(model.n_classes):
+        if tally[k] >= 0:
+            ptr, out, cum, r = model.tally_ptr, model.tally_out, model.tally_cum, tally[k]
+        elif marg[k] >= 0:
+            ptr, out, cum, r = model.marg_ptr, model.marg_out, model.marg_cum, marg[k]
+        else:
+            continue
+        lo, hi = ptr[r], ptr[r + 1]
+        np.add.at(probs, out[lo:hi], p[k] * np.diff(np.concatenate([[0.0], cum[lo:hi]])))
+    return probs
+
+
 def outcome_probabilities(
     model: ObservationModel, cell: int, action: int, p_y: np.ndarray
 ) -> np.ndarray:

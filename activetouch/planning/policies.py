@@ -106,6 +106,7 @@ class TreePolicy(Policy):
         exploration_c: float = 1.0,
         lam: float = 0.5,
         replan_every_grasp: bool = False,
+        eq4_sampling: str = "renormalise",
     ) -> None:
         if horizon < 1:
             raise ConfigError(f"planner.horizon must be >= 1, got {horizon}")
@@ -121,6 +122,12 @@ class TreePolicy(Policy):
         self.exploration_c = float(exploration_c)
         self.lam = float(lam)
         self.replan_every_grasp = bool(replan_every_grasp)
+        if eq4_sampling not in EQ4_SAMPLING:
+            raise ConfigError(
+                f"planner.eq4_sampling must be one of {', '.join(EQ4_SAMPLING)}, "
+                f"got {eq4_sampling!r}"
+            )
+        self.per_class_backoff = eq4_sampling == "per_class"
 
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         res = self.search.search(
@@ -133,6 +140,7 @@ class TreePolicy(Policy):
             rng=rng,
             exploration_c=self.exploration_c,
             lam=self.lam,
+            per_class_backoff=self.per_class_backoff,
         )
         if res.exhausted:
             return _exhausted(self.name)
@@ -178,6 +186,7 @@ class RandomPolicy(Policy):
 
 
 POLICY_NAMES: tuple[str, ...] = ("tree", "greedy", "random")
+EQ4_SAMPLING: tuple[str, ...] = ("renormalise", "per_class")
 
 
 def make_policy(
@@ -191,6 +200,7 @@ def make_policy(
         "exploration_c": cfg.exploration_c,
         "lam": cfg.lam,
         "replan_every_grasp": cfg.replan_every_grasp,
+        "eq4_sampling": cfg.eq4_sampling,
     }
     if name == "tree":
         return TreePolicy(model, kernel, horizon=cfg.horizon, **kw)  # type: ignore[arg-type]

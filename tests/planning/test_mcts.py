@@ -447,7 +447,7 @@ def test_sampled_observations_follow_eq4(synth) -> None:
         n = 20000
         draws = np.array(
             [
-                mcts._sample_outcome(mt, kern, action, cell, counts, S, rows, counters)
+                mcts._sample_outcome(mt, kern, action, cell, counts, S, rows, counters, False)
                 for _ in range(n)
             ]
         )
@@ -500,3 +500,41 @@ def test_incremental_scores_equal_kernel_proba(kind: int, synth) -> None:
             mcts._scores_add(kern, out_ptr, out_bin, int(o), h, S)
         if kind != KIND_NN_INTERSECTION:
             assert S[6] == pytest.approx(h.sum()) and S[7] == pytest.approx(h @ h)
+
+
+def test_per_class_backoff_follows_its_reference(synth) -> None:
+    """planner.eq4_sampling = "per_class": y from the full p(y|h), its own row, else its
+    action-only row, else nothing; frequencies (nothing included) match the reference."""
+    from activetouch.planning.observation_model import outcome_probabilities_per_class
+
+    m = synth.model
+    kern = mcts.kernel_tuple(synth.kernel)
+    mt = model_tuple(m)
+    counts, _ = _root(synth, 5)
+    p_y = synth.kernel.proba(counts)
+    S = np.empty(kern[1].shape[0] + 2)
+    mcts._scores_init(kern, counts, S)
+    A, C = m.n_actions, m.n_cells
+    # A (cell, action) where some but not all classes have a tally row: the two readings differ.
+    codes = m.tally_key
+    by_pair: dict[tuple[int, int], int] = {}
+    for k in codes:
+        key = (int(k % C), int(k // C % A))
+        by_pair[key] = by_pair.get(key, 0) + 1
+    cell, action = next(p for p, n in by_pair.items() if n < m.n_classes)
+    rows = np.empty(m.n_classes, dtype=np.int64)
+    counters = np.zeros(3, dtype=np.int64)
+    mcts.seed_numba(7)
+    n = 20000
+    draws = np.array(
+        [
+            mcts._sample_outcome(mt, kern, action, cell, counts, S, rows, counters, True)
+            for _ in range(n)
+        ]
+    )
+    expect = outcome_probabilities_per_class(m, cell, action, p_y)
+    freq = np.bincount(draws[draws >= 0], minlength=m.n_outcomes) / n
+    assert np.abs(freq - expect).max() < 0.02
+    assert abs(np.mean(draws < 0) - (1.0 - expect.sum())) < 0.02
+    # The renormalising reading never answers "nothing" when some class has a row.
+    assert not np.allclose(expect, outcome_probabilities(m, cell, action, p_y))

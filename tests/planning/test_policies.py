@@ -156,3 +156,8 @@ def test_stop_condition_and_bad_names() -> None:
         make_policy("mcts", PlannerConfig(), pr.model, pr.kernel)
     with pytest.raises(ConfigError, match="horizon"):
         make_policy("tree", PlannerConfig(horizon=0), pr.model, pr.kernel)
+    with pytest.raises(ConfigError, match="eq4_sampling"):
+        make_policy("tree", PlannerConfig(eq4_sampling="guess"), pr.model, pr.kernel)
+    per_class = make_policy("tree", PlannerConfig(eq4_sampling="per_class"), pr.model, pr.kernel)
+    plan = per_class.plan(PlanningState.start(0, counts, cells), np.random.default_rng(0))
+    assert plan.poses.size
