@@ -12,6 +12,7 @@ BENCHES: dict[str, str] = {
     "recognition": "activetouch.recognition.bench",
     "planner": "activetouch.planning.bench",
     "sim": "activetouch.sim.bench",
+    "train": "activetouch.service.training_bench",
     "service": "activetouch.service.bench",
 }
 
