@@ -546,7 +546,27 @@ class _RemoteNode:
         return RemoteError(f"{self.node} node: {op} failed: {env.error_type}: {env.error}")
 
 
-class RemoteHand(_RemoteNode, Hand):
+class _RemoteDevice(_RemoteNode):
+    """A hand or arm node elsewhere: quick calls bounded by `timeout`, motions by
+    `motion_timeout`; `connect()` waits for the node's liveliness token."""
+
+    def __init__(
+        self, session: zenoh.Session, robot: str, node: str, timeout: float, motion_timeout: float
+    ) -> None:
+        super().__init__(session, robot, node, timeout)
+        if not motion_timeout > 0:
+            raise ConfigError(f"motion_timeout must be > 0 s, got {motion_timeout}")
+        self.motion_timeout = float(motion_timeout)
+
+    def connect(self) -> None:
+        self._watch()
+        self.wait_alive()
+
+    def disconnect(self) -> None:
+        self.close()
+
+
+class RemoteHand(_RemoteDevice, Hand):
     """A `Hand` served by a `HandNode` elsewhere.
 
     `timeout` bounds quick calls (state); `motion_timeout` bounds open, preshape and
@@ -560,17 +580,7 @@ class RemoteHand(_RemoteNode, Hand):
         *,
         motion_timeout: float = 30.0,
     ) -> None:
-        super().__init__(session, robot, HAND_NODE, timeout)
-        if not motion_timeout > 0:
-            raise ConfigError(f"motion_timeout must be > 0 s, got {motion_timeout}")
-        self.motion_timeout = float(motion_timeout)
-
-    def connect(self) -> None:
-        self._watch()
-        self.wait_alive()
-
-    def disconnect(self) -> None:
-        self.close()
+        super().__init__(session, robot, HAND_NODE, timeout, motion_timeout)
 
     def open(self) -> None:
         self._call("open", self.keys.hand_open, Empty(), None, self.motion_timeout)
@@ -594,7 +604,7 @@ class RemoteHand(_RemoteNode, Hand):
         return hand_state_from_msg(self._call("state", self.keys.hand_state, Empty(), HandStateMsg))
 
 
-class RemoteArm(_RemoteNode, Arm):
+class RemoteArm(_RemoteDevice, Arm):
     """An `Arm` served by an `ArmNode` elsewhere.
 
     `timeout` bounds quick calls (joint_state, stop); `motion_timeout` bounds move_wrist, and
@@ -608,17 +618,7 @@ class RemoteArm(_RemoteNode, Arm):
         *,
         motion_timeout: float = 120.0,
     ) -> None:
-        super().__init__(session, robot, ARM_NODE, timeout)
-        if not motion_timeout > 0:
-            raise ConfigError(f"motion_timeout must be > 0 s, got {motion_timeout}")
-        self.motion_timeout = float(motion_timeout)
-
-    def connect(self) -> None:
-        self._watch()
-        self.wait_alive()
-
-    def disconnect(self) -> None:
-        self.close()
+        super().__init__(session, robot, ARM_NODE, timeout, motion_timeout)
 
     def joint_state(self) -> JointState:
         msg = self._call("joint_state", self.keys.arm_joint_state, Empty(), JointStateMsg)
