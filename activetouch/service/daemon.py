@@ -99,7 +99,12 @@ from activetouch.service.nodes import (
     _RemoteNode,
     _ServedNode,
 )
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, validate_endpoint
+from activetouch.service.zenoh_session import (
+    ZenohSession,
+    ZenohSettings,
+    undeclare_quietly,
+    validate_endpoint,
+)
 
 log = logging.getLogger("activetouch.daemon")
 
@@ -1111,12 +1116,7 @@ class RecognitionService:
                 return
             self._closing = True
             self._cv.notify_all()
-        for obj in (self._token, *self._queryables):
-            if obj is not None:
-                try:
-                    obj.undeclare()
-                except Exception:
-                    log.debug("undeclare failed", exc_info=True)
+        undeclare_quietly(self._token, *self._queryables)
         self._token = None
         self._queryables.clear()
         cur = self._abort_all(reason)
@@ -1139,10 +1139,7 @@ class RecognitionService:
                 log.debug("close failed", exc_info=True)
         self._objs.clear()
         if self._publisher is not None:
-            try:
-                self._publisher.undeclare()
-            except Exception:
-                log.debug("undeclare failed", exc_info=True)
+            undeclare_quietly(self._publisher)
             self._publisher = None
         log.info("recognition service closed")
 

@@ -74,7 +74,7 @@ from activetouch.service.messages import (
     trajectory_from_msg,
     trajectory_to_msg,
 )
-from activetouch.service.zenoh_session import close_at_exit
+from activetouch.service.zenoh_session import close_at_exit, undeclare_quietly
 
 log = logging.getLogger(__name__)
 
@@ -212,12 +212,7 @@ class _ServedNode:
             return
         self._closed = True
         self._closing.set()
-        for obj in (self._token, *self._queryables):
-            if obj is not None:
-                try:
-                    obj.undeclare()
-                except Exception:  # the session may already be closed
-                    log.debug("undeclare failed", exc_info=True)
+        undeclare_quietly(self._token, *self._queryables)
         self._token = None
         self._queryables.clear()
         try:
@@ -236,10 +231,7 @@ class _ServedNode:
                         join_timeout,
                     )
         if self._publisher is not None:
-            try:
-                self._publisher.undeclare()
-            except Exception:
-                log.debug("undeclare failed", exc_info=True)
+            undeclare_quietly(self._publisher)
             self._publisher = None
         log.info("%s node of robot %s closed", self.node_name, self.robot)
 
@@ -475,10 +467,7 @@ class _RemoteNode:
     def close(self) -> None:
         sub, self._live_sub = self._live_sub, None
         if sub is not None:
-            try:
-                sub.undeclare()
-            except Exception:
-                log.debug("undeclare failed", exc_info=True)
+            undeclare_quietly(sub)
 
     def _gone_error(self, op: str) -> NodeUnavailableError:
         return NodeUnavailableError(
@@ -695,10 +684,7 @@ class Latest(Generic[M]):
     def close(self) -> None:
         sub, self._sub = self._sub, None
         if sub is not None:
-            try:
-                sub.undeclare()
-            except Exception:
-                log.debug("undeclare failed", exc_info=True)
+            undeclare_quietly(sub)
 
 
 class AliveNodes:
@@ -744,7 +730,4 @@ class AliveNodes:
     def close(self) -> None:
         sub, self._sub = self._sub, None
         if sub is not None:
-            try:
-                sub.undeclare()
-            except Exception:
-                log.debug("undeclare failed", exc_info=True)
+            undeclare_quietly(sub)

@@ -123,6 +123,18 @@ _exit_lock = threading.Lock()
 _exit_refs: list[weakref.ref] = []
 
 
+def undeclare_quietly(*objs: Any) -> None:
+    """Undeclare Zenoh entities (None skipped); failures are logged, never raised, because at
+    shutdown the session may already be closed."""
+    for obj in objs:
+        if obj is None:
+            continue
+        try:
+            obj.undeclare()
+        except Exception:
+            log.debug("undeclare failed", exc_info=True)
+
+
 def close_at_exit(obj: Any) -> None:
     """Close `obj` (weakly held) at interpreter exit if it is still open then.
 
