@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from activetouch.service.messages import RecognizeRequest
     from activetouch.service.recognize import load_trained, model_path
 
-    console = Console()
+    console = Console(soft_wrap=True)  # progress lines stay whole in logs
     root = paths.data_dir(args.data)
     cfg = load_config(args.config, args.overrides)
     seeds = parse_seeds(args.seeds)

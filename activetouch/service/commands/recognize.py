@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     policy = args.policy or cfg.planner.policy
     root = paths.data_dir(args.data)
     # With --json, stdout carries only the JSON object; progress goes to stderr.
-    console = Console(stderr=args.json)
+    console = Console(stderr=args.json, soft_wrap=True)  # progress lines stay whole in logs
     if args.connect:
         return run_remote(args, cfg, policy, console)
     if not args.object:
