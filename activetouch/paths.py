@@ -22,6 +22,10 @@ def data_dir(explicit: str | os.PathLike | None = None) -> Path:
     return root.expanduser()
 
 
+DEFAULT_DATASET = "twin"  # datasets/<name>: what `train` collects into by default
+DEFAULT_MODEL = "default"  # models/<name>: what `train` writes and `recognize` loads
+
+
 def objects_dir(root: Path) -> Path:
     return root / "objects"
 
@@ -32,3 +36,11 @@ def datasets_dir(root: Path) -> Path:
 
 def models_dir(root: Path) -> Path:
     return root / "models"
+
+
+def default_dataset(root: Path) -> Path:
+    return datasets_dir(root) / DEFAULT_DATASET
+
+
+def default_model(root: Path) -> Path:
+    return models_dir(root) / DEFAULT_MODEL

@@ -18,11 +18,9 @@ from activetouch.planning.policies import POLICY_NAMES, make_policy
 from activetouch.service.session import Progress, RecognitionResult, RecognitionSession
 from activetouch.sim.objects import ObjectLibrary
 
-DEFAULT_MODEL = "default"
-
 
 def model_path(root: Path, explicit: str | None) -> Path:
-    return Path(explicit) if explicit else paths.models_dir(root) / DEFAULT_MODEL
+    return Path(explicit) if explicit else paths.default_model(root)
 
 
 def load_trained(path: Path) -> TrainedModel:

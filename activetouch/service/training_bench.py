@@ -35,10 +35,10 @@ def run(workers: int | None, overrides: list[str], names: list[str] | None = Non
         t_objects = time.perf_counter() - t0
         grid_poses = sum(len(training_grid(lib.get(n).extents, cfg.grid)) for n in names)
         t1 = time.perf_counter()
-        stats = collect(lib, paths.datasets_dir(root) / "twin", names, cfg, workers=workers)
+        stats = collect(lib, paths.default_dataset(root), names, cfg, workers=workers)
         t_collect = time.perf_counter() - t1
         t2 = time.perf_counter()
-        model = fit_and_save(paths.datasets_dir(root) / "twin", names, cfg, root / "model")
+        model = fit_and_save(paths.default_dataset(root), names, cfg, root / "model")
         t_fit = time.perf_counter() - t2
     total = time.perf_counter() - t0
     grasped = sum(s.grasped for s in stats)

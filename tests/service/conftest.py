@@ -26,12 +26,12 @@ def trained_home(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cfg = small_config()
     lib = ObjectLibrary(paths.objects_dir(root))
     lib.ensure_builtins(SMALL_OBJECTS)
-    ds = paths.datasets_dir(root) / "twin"
+    ds = paths.default_dataset(root)
     collect(lib, ds, SMALL_OBJECTS, cfg, workers=1)
-    fit_and_save(ds, SMALL_OBJECTS, cfg, paths.models_dir(root) / "default")
+    fit_and_save(ds, SMALL_OBJECTS, cfg, paths.default_model(root))
     return root
 
 
 @pytest.fixture(scope="session")
 def small_model(trained_home: Path):
-    return load_model(paths.models_dir(trained_home) / "default")
+    return load_model(paths.default_model(trained_home))

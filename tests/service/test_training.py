@@ -76,10 +76,10 @@ def test_train_command_end_to_end_in_two_processes(tmp_path, capsys):
         ]
     )
     assert rc == 0
-    model_dir = paths.models_dir(tmp_path) / "default"
+    model_dir = paths.default_model(tmp_path)
     doc = json.loads((model_dir / "model.json").read_text())
     assert doc["class_names"] == ["sphere", "cup"]
-    ds = Dataset.open(paths.datasets_dir(tmp_path) / "twin")
+    ds = Dataset.open(paths.default_dataset(tmp_path))
     assert sorted(ds.object_names()) == ["cup", "sphere"]
     assert "model written to" in capsys.readouterr().out
 

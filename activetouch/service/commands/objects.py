@@ -23,8 +23,6 @@ from activetouch.errors import DataError
 from activetouch.service.cli import add_common_options
 from activetouch.sim.objects import ObjectLibrary, ObjectSpec
 
-DEFAULT_DATASET = "default"
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("objects", help="the object library: list, import, render")
@@ -64,7 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument(
         "--dataset",
         metavar="NAME",
-        default=DEFAULT_DATASET,
+        default=paths.DEFAULT_DATASET,
         help="training dataset under DATA/datasets whose poses and contacts to draw",
     )
     pr.add_argument("--parts", action="store_true", help="draw the convex collision parts instead")

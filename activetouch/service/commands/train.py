@@ -15,9 +15,6 @@ from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
 
-DEFAULT_DATASET = "twin"
-DEFAULT_MODEL = "default"
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     from activetouch.service.cli import add_common_options
@@ -62,8 +59,8 @@ def train(
     library = ObjectLibrary(paths.objects_dir(root))
     with console.status("preparing the object library"):
         library.ensure_builtins()
-    dataset = dataset or paths.datasets_dir(root) / DEFAULT_DATASET
-    out = out or paths.models_dir(root) / DEFAULT_MODEL
+    dataset = dataset or paths.default_dataset(root)
+    out = out or paths.default_model(root)
 
     t0 = time.perf_counter()
     with Progress(

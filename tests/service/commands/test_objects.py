@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from activetouch import paths
 from activetouch.interfaces import Grasp, Pose
 from activetouch.service.cli import main
 from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary
@@ -100,7 +101,7 @@ def test_render_mesh_and_dataset(data: Path, tmp_path: Path, capsys) -> None:
     from activetouch.recognition.dataset import Dataset, GraspRecord
 
     # Two grasps of the cup: hand frames looking at the centre, contacts in the hand frame.
-    ds = Dataset.create_or_open(data / "datasets" / "default")
+    ds = Dataset.create_or_open(paths.default_dataset(data))
     recs = []
     for i, quat in enumerate([[1.0, 0.0, 0.0, 0.0], [0.0, 0.7071068, 0.0, 0.7071068]]):
         pose = Pose(np.array([0.0, 0.0, 0.15]) if i == 0 else np.array([-0.15, 0.0, 0.0]), quat)
