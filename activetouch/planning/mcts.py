@@ -15,6 +15,8 @@ One tree search (Alg. 3 run `simulations` times from a fresh root, then Alg. 2's
 - **Rollout**: uniformly random unvisited edges down to depth T (a temporary path, not stored).
 - **Cost** (Eq. 1): ``C = lam / T * sum_t c_m(a_t) + (1 - lam) * (1 - max_y p(y | h_T))`` with
   ``p`` the classifier kernel on the simulated histogram counts; reward ``r = 1 - C``.
+  ``c_m`` is the model's ``edge_cost`` of the step's edge: the paper's c_m(a) of its action for
+  relative actions, the cost of the move itself for absolute ones.
 - **Backup**: every edge on the stored path gets ``N_a += 1, Q_a += (r - Q_a) / N_a``. Like the
   paper ("C_{t_a} is C_T(pi)"), every depth stores the whole path's reward, so the value of
   an edge deep in the tree estimates the cost of the full root-to-leaf path.
@@ -231,7 +233,7 @@ def _sample_outcome(
         _edge_ptr,
         _edge_action,
         _edge_target,
-        _action_cost,
+        _edge_cost,
         _out_cell,
         _out_ptr,
         _out_bin,
@@ -454,7 +456,7 @@ def _run_simulations(
         edge_ptr,
         edge_action,
         edge_target,
-        action_cost,
+        edge_cost,
         out_cell,
         out_ptr,
         out_bin,
@@ -521,7 +523,7 @@ def _run_simulations(
                 break
             e = rec_edge[rec]
             a = edge_action[e]
-            move += action_cost[a]
+            move += edge_cost[e]
             o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters, per_class)
             if o >= 0:
                 _scores_add(kern, out_ptr, out_bin, o, hist, S)
@@ -561,7 +563,7 @@ def _run_simulations(
             if e < 0:
                 break
             a = edge_action[e]
-            move += action_cost[a]
+            move += edge_cost[e]
             o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters, per_class)
             if o >= 0:
                 _scores_add(kern, out_ptr, out_bin, o, hist, S)
@@ -763,7 +765,7 @@ def model_tuple(model: ObservationModel) -> tuple:
         i64(model.edge_ptr),
         i64(model.edge_action),
         i64(model.edge_target),
-        f64(model.action_cost),
+        f64(model.edge_cost),
         i64(model.out_cell),
         i64(model.out_ptr),
         i64(model.out_bin),

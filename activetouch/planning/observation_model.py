@@ -21,6 +21,11 @@ How `build_observation_model` fills the tables:
   edge is the discretised pose of q in p's frame. Action ids index the distinct discretised
   relative poses (ascending key order); `action_delta` holds the discretised values and
   `action_cost` the mean movement cost of the exact relative poses of the edges in the action.
+- Absolute actions (observation.action_frame = "absolute", not the paper): the action of an
+  edge p -> q is q's own discretised pose (A = P); class y's tallies come from pairs (i, j) of
+  its grasps at different poses where j is y's grasp in q's cell, else y's grasp nearest to q
+  within absolute_near_m / absolute_near_deg (the objects' grids differ in radius). The move's
+  cost then depends on p as well, so `edge_cost` holds the exact c_m of each edge.
 - Cells: a dictionary of the discretised triangle triples met in training; `cell_key[c]` is the
   integer triple ``trunc(v / triangle_cell)`` of cell c (rows sorted). Unseen triples -> -1.
 - Tallies of class y from every ordered pair (i, j) of its grasps at different pooled poses,
@@ -51,6 +56,7 @@ from activetouch.errors import ConfigError, DataError
 from activetouch.recognition.histogram import HistogramSpec
 
 GRANULARITIES = ("triangle", "grasp")
+ACTION_FRAMES = ("relative", "absolute")
 
 _I64 = np.int64
 
@@ -97,6 +103,17 @@ class ObservationModel:
     quaternion_cell: float = 0.05
     triangle_cell: float = 0.08
     max_translation: float = 0.0  # m, the largest edge translation: c_m's normaliser
+    # Movement cost c_m of each edge (E,), what the search adds per step. With relative actions
+    # it is action_cost[edge_action] (the paper's c_m(a)); with absolute actions the cost is
+    # that of the move p -> q, which the action (q alone) does not fix. Left empty, it is
+    # derived from action_cost, so hand-built models and models saved before it stay valid.
+    edge_cost: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (E,) float64
+    action_frame: str = "relative"  # "relative" (the paper) | "absolute", see the builder
+
+    def __post_init__(self) -> None:
+        ea, ac = np.asarray(self.edge_action), np.asarray(self.action_cost)
+        if len(self.edge_cost) == 0 and len(ea) and ea.min() >= 0 and ea.max() < len(ac):
+            object.__setattr__(self, "edge_cost", ac[ea].astype(np.float64))
 
     @property
     def n_classes(self) -> int:
@@ -192,6 +209,8 @@ class ObservationModel:
 
         if self.granularity not in GRANULARITIES:
             fail(f"granularity {self.granularity!r}")
+        if self.action_frame not in ACTION_FRAMES:
+            fail(f"action_frame {self.action_frame!r}")
         shapes = {
             "pose_xyz": (P, 3),
             "pose_quat": (P, 4),
@@ -201,6 +220,7 @@ class ObservationModel:
             "tally_ptr": (len(self.tally_key) + 1,),
             "marg_ptr": (len(self.marg_key) + 1,),
             "cell_key": (C, 3),
+            "edge_cost": (len(self.edge_action),),
         }
         for name, shape in shapes.items():
             if getattr(self, name).shape != shape:
@@ -242,10 +262,12 @@ class ObservationModel:
             k = getattr(self, key)
             if len(k) and (np.any(np.diff(k) <= 0) or k[0] < 0 or k[-1] >= bound):
                 fail(f"{key} is not strictly ascending within [0, {bound})")
+        if not np.all((self.edge_cost >= 0) & (self.edge_cost <= 1)):
+            fail("edge_cost holds movement costs outside [0, 1]")
 
 
 _FLOAT_ARRAYS = frozenset(
-    {"pose_xyz", "pose_quat", "action_delta", "action_cost", "tally_cum", "marg_cum"}
+    {"pose_xyz", "pose_quat", "action_delta", "action_cost", "tally_cum", "marg_cum", "edge_cost"}
 )
 
 
@@ -408,6 +430,18 @@ def build_observation_model(
         raise ConfigError(
             f"observation.granularity {cfg.granularity!r}: choose one of {', '.join(GRANULARITIES)}"
         )
+    if cfg.action_frame not in ACTION_FRAMES:
+        raise ConfigError(
+            f"observation.action_frame {cfg.action_frame!r}: choose one of "
+            f"{', '.join(ACTION_FRAMES)}"
+        )
+    if cfg.action_frame == "absolute" and not (
+        cfg.absolute_near_m >= 0 and cfg.absolute_near_deg >= 0
+    ):
+        raise ConfigError(
+            "observation.absolute_near_m and absolute_near_deg must be >= 0, got "
+            f"{cfg.absolute_near_m} and {cfg.absolute_near_deg}"
+        )
     tcell, qcell, ccell = cfg.translation_cell_m, cfg.quaternion_cell, cfg.triangle_cell
     for name, v in (
         ("translation_cell_m", tcell),
@@ -465,16 +499,23 @@ def build_observation_model(
         src = dst = _empty_i64()
     pooled = np.concatenate([pose_xyz, pose_quat], axis=1)
     delta = relative_pose(pooled[src], pooled[dst]) if len(src) else np.zeros((0, 7))
-    dkey = _pose_keys(delta, tcell, qcell)
-    akeys, _, edge_action = _encode_rows(dkey)
+    absolute = cfg.action_frame == "absolute"
+    if absolute:
+        # The action of p -> q is q's own cell: pooled poses have distinct cells, so A = P.
+        akeys, _, pose_action = _encode_rows(_pose_keys(pooled, tcell, qcell))
+        edge_action = pose_action[dst] if len(dst) else _empty_i64()
+    else:
+        akeys, _, edge_action = _encode_rows(_pose_keys(delta, tcell, qcell))
     A = len(akeys)
     action_delta = np.concatenate(
         [akeys[:, :3].astype(np.float64) * tcell, akeys[:, 3:].astype(np.float64) * qcell], axis=1
     )
     max_t = float(np.linalg.norm(delta[:, :3], axis=1).max()) if len(delta) else 0.0
-    edge_cost = movement_cost(delta, max_t)
+    move_cost = movement_cost(delta, max_t)
     n_in = np.bincount(edge_action, minlength=A)
-    action_cost = np.bincount(edge_action, weights=edge_cost, minlength=A) / np.maximum(n_in, 1)
+    action_cost = np.bincount(edge_action, weights=move_cost, minlength=A) / np.maximum(n_in, 1)
+    # Relative: the paper's c_m(a) of the edge's action; absolute: the exact move's own cost.
+    edge_cost = move_cost if absolute else action_cost[edge_action]
     edge_ptr = np.arange(P + 1, dtype=np.int64) * max(P - 1, 0)
 
     # Cells and bins of every training triangle.
@@ -513,14 +554,25 @@ def build_observation_model(
         g = np.flatnonzero(g_class == y)
         if len(g) < 2 or P < 2:
             continue
-        ii = np.repeat(g, len(g))
-        jj = np.tile(g, len(g))
-        pi, pj = grasp_pose[ii], grasp_pose[jj]
-        ok = pi != pj
-        ii, jj, pi, pj = ii[ok], jj[ok], pi[ok], pj[ok]
+        if absolute:
+            ii, jj, act = _absolute_pairs(
+                g,
+                grasp_pose,
+                all_poses,
+                pooled,
+                pose_action,
+                cfg.absolute_near_m,
+                np.deg2rad(cfg.absolute_near_deg),
+            )
+        else:
+            ii = np.repeat(g, len(g))
+            jj = np.tile(g, len(g))
+            pi, pj = grasp_pose[ii], grasp_pose[jj]
+            ok = pi != pj
+            ii, jj, pi, pj = ii[ok], jj[ok], pi[ok], pj[ok]
+            act = edge_action[pi * (P - 1) + pj - (pj > pi)]
         if len(ii) == 0:
             continue
-        act = edge_action[pi * (P - 1) + pj - (pj > pi)]
         n_pairs = len(ii)
         right = omat[jj]  # (pairs, O): outcomes of the second grasp of each pair
 
@@ -586,7 +638,50 @@ def build_observation_model(
         quaternion_cell=float(qcell),
         triangle_cell=float(ccell),
         max_translation=max_t,
+        edge_cost=np.asarray(edge_cost, dtype=np.float64),
+        action_frame=cfg.action_frame,
     )
+
+
+def _absolute_pairs(
+    g: np.ndarray,
+    grasp_pose: np.ndarray,
+    all_poses: np.ndarray,
+    pooled: np.ndarray,
+    pose_action: np.ndarray,
+    near_m: float,
+    near_rad: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tally pairs (i, j, action) of one class's grasps `g` for absolute actions.
+
+    For every pooled pose q the class answers with its grasps at q's cell, else with those at
+    the pooled pose of its grasp nearest to q (translation) among the grasps within `near_m`
+    and `near_rad`; j is such a grasp, the action is q's, and i runs over the class's grasps
+    at other poses than j (the conditioning observation came from somewhere else)."""
+    P = len(pooled)
+    diff = all_poses[g][None, :, :3] - pooled[:, None, :3]
+    dist = np.linalg.norm(diff, axis=-1)  # (P, n_g)
+    dots = np.abs(canonical_quat(all_poses[g][:, 3:]) @ pooled[:, 3:].T).T
+    angle = 2.0 * np.arccos(np.clip(dots, 0.0, 1.0))
+    ok = (dist <= near_m) & (angle <= near_rad)
+    score = np.where(ok, dist, np.inf)
+    own = grasp_pose[g][None, :] == np.arange(P)[:, None]
+    score[own] = -1.0  # a grasp in q's own cell always answers for q
+    best = np.argmin(score, axis=1)
+    has = np.isfinite(score[np.arange(P), best])
+    q = np.flatnonzero(has)
+    answer_pose = grasp_pose[g][best[q]]  # pooled pose whose grasps answer for q
+    # (q, j) for every grasp j of the class at the answering pose.
+    match = grasp_pose[g][None, :] == answer_pose[:, None]  # (len(q), n_g)
+    qq, jk = np.nonzero(match)
+    q_of, j_of = q[qq], g[jk]
+    # Cross with every grasp i of the class at another pose than j.
+    n_g = len(g)
+    ii = np.tile(g, len(j_of))
+    jj = np.repeat(j_of, n_g)
+    aa = np.repeat(pose_action[q_of], n_g)
+    keep = grasp_pose[ii] != grasp_pose[jj]
+    return ii[keep], jj[keep], aa[keep].astype(np.int64)
 
 
 def _drop_empty(

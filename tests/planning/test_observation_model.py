@@ -346,3 +346,101 @@ def test_bad_inputs() -> None:
     m = build_observation_model(hand_built(), SPEC, ObservationConfig())
     with pytest.raises(ValueError, match="p_y"):
         outcome_probabilities(m, 0, action_of(m, P0, P1), np.array([1.0]))
+
+
+# --- absolute actions (observation.action_frame = "absolute") ---------------------------------
+
+# Class b's grid is class a's moved by 0.055 m in x: its pose near P1 lies in another
+# translation cell (0.185 / 0.06 -> 3, 0.13 / 0.06 -> 2) but within absolute_near_m of P1.
+B1 = np.array([0.185, 0.0, 0.0, *IDENTITY])
+
+
+def absolute_objects() -> list[tuple[str, np.ndarray, list[np.ndarray]]]:
+    a = ("a", np.stack([P0, P1, P2]), [tri(T1), tri(T3), tri(T4)])
+    b = ("b", np.stack([P0, B1, P3]), [tri(T1), tri(T4, T4), tri(T3)])
+    return [a, b]
+
+
+def marg_row(model: ObservationModel, y: int, action: int) -> dict[int, float] | None:
+    code = y * model.n_actions + action
+    hits = np.flatnonzero(model.marg_key == code)
+    if len(hits) == 0:
+        return None
+    lo, hi = model.marg_ptr[hits[0]], model.marg_ptr[hits[0] + 1]
+    pmf = np.diff(np.concatenate([[0.0], model.marg_cum[lo:hi]]))
+    return dict(zip(model.marg_out[lo:hi].tolist(), pmf.tolist(), strict=True))
+
+
+def test_absolute_actions_give_every_class_near_the_target_a_row() -> None:
+    m = build_observation_model(
+        absolute_objects(), SPEC, ObservationConfig(action_frame="absolute")
+    )
+    assert m.action_frame == "absolute"
+    assert m.n_poses == 5 and m.n_actions == 5  # one action per pooled pose: its own cell
+    i0, i1, i2, i3, ib1 = (m.pose_index_of(p) for p in (P0, P1, P2, P3, B1))
+    assert len({i0, i1, i2, i3, ib1}) == 5
+    # Every edge into q carries q's action, whatever pose it leaves from.
+    for q in range(m.n_poses):
+        assert len(set(m.edge_action[m.edge_target == q].tolist())) == 1
+    act = {q: int(m.edge_action[m.edge_target == q][0]) for q in range(m.n_poses)}
+    assert len(set(act.values())) == m.n_poses
+    o1, o3, o4 = (triangle_outcome(m, t) for t in (T1, T3, T4))
+    # P1: a's own grasp (T3); b answers with its grasp at B1, 0.055 m away (T4).
+    assert marg_row(m, 0, act[i1]) == pytest.approx({o3: 1.0})
+    assert marg_row(m, 1, act[i1]) == pytest.approx({o4: 1.0})
+    # B1: b's own grasp; a answers with its grasp at P1.
+    assert marg_row(m, 0, act[ib1]) == pytest.approx({o3: 1.0})
+    assert marg_row(m, 1, act[ib1]) == pytest.approx({o4: 1.0})
+    # P0 is shared (T1 for both); P2 is 0.075 m from B1, P3 far from a: one class each.
+    assert marg_row(m, 0, act[i0]) == marg_row(m, 1, act[i0]) == pytest.approx({o1: 1.0})
+    assert marg_row(m, 0, act[i2]) == pytest.approx({o4: 1.0}) and marg_row(m, 1, act[i2]) is None
+    assert marg_row(m, 1, act[i3]) == pytest.approx({o3: 1.0}) and marg_row(m, 0, act[i3]) is None
+    # Tallies are conditioned on the cell of the other grasp i (never one at j's own pose):
+    # b's pairs into P1 (j = B1) come from P0 (T1) and P3 (T3).
+    c1, c3, c4 = (int(m.cells_of(tri(t))[0]) for t in (T1, T3, T4))
+    assert row(m, 1, act[i1], c1) == pytest.approx({o4: 1.0})
+    assert row(m, 1, act[i1], c3) == pytest.approx({o4: 1.0})
+    assert not has_row(m, 1, act[i1], c4)
+    assert row(m, 0, act[i1], c4) == pytest.approx({o3: 1.0})  # a's i at P2 -> j at P1
+    # Without the nearness tolerance only exact cells count.
+    exact = build_observation_model(
+        absolute_objects(), SPEC, ObservationConfig(action_frame="absolute", absolute_near_m=0.0)
+    )
+    assert marg_row(exact, 1, act[i1]) is None and marg_row(exact, 0, act[ib1]) is None
+    assert marg_row(exact, 0, act[i1]) == pytest.approx({o3: 1.0})
+
+
+def test_edge_cost_is_the_cost_of_the_move() -> None:
+    objs = absolute_objects()
+    objs[1] = (
+        "b",
+        np.stack(
+            [P0, B1, np.array([0.0, 0.3, 0.0, *Rotation.from_rotvec([0.0, 0.0, 1.2]).as_quat()])]
+        ),
+        objs[1][2],
+    )
+    rel = build_observation_model(objs, SPEC, ObservationConfig())
+    ab = build_observation_model(objs, SPEC, ObservationConfig(action_frame="absolute"))
+    np.testing.assert_array_equal(ab.pose_xyz, rel.pose_xyz)
+    # Relative actions: the paper's c_m(a) of the edge's action.
+    np.testing.assert_array_equal(rel.edge_cost, rel.action_cost[rel.edge_action])
+    # Absolute actions: the cost of the exact move p -> q, edge by edge.
+    src = np.repeat(np.arange(ab.n_poses), np.diff(ab.edge_ptr))
+    pooled = np.concatenate([ab.pose_xyz, ab.pose_quat], axis=1)
+    want = movement_cost(relative_pose(pooled[src], pooled[ab.edge_target]), ab.max_translation)
+    np.testing.assert_allclose(ab.edge_cost, want, atol=1e-12)
+    assert len(set(np.round(ab.edge_cost[ab.edge_action == ab.edge_action[0]], 9))) > 1
+    # Saved and loaded, the edge costs and the frame survive.
+    again = ObservationModel.from_parts(ab.scalars(), ab.arrays())
+    assert again.action_frame == "absolute"
+    np.testing.assert_array_equal(again.edge_cost, ab.edge_cost)
+    # A model saved before edge_cost existed derives it from its actions.
+    old = {k: v for k, v in rel.arrays().items() if k != "edge_cost"}
+    scal = {k: v for k, v in rel.scalars().items() if k != "action_frame"}
+    loaded = ObservationModel.from_parts(scal, old)
+    assert loaded.action_frame == "relative"
+    np.testing.assert_array_equal(loaded.edge_cost, rel.edge_cost)
+    with pytest.raises(DataError, match="edge_cost"):
+        ObservationModel.from_parts(ab.scalars(), dict(ab.arrays(), edge_cost=ab.edge_cost[:-1]))
+    with pytest.raises(ConfigError, match="action_frame"):
+        build_observation_model(objs, SPEC, ObservationConfig(action_frame="polar"))

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from scipy.stats import chisquare
 
-from activetouch.config import PlannerConfig
+from activetouch.config import ObservationConfig, PlannerConfig
 from activetouch.errors import ConfigError
+from activetouch.planning.observation_model import build_observation_model
 from activetouch.planning.policies import (
     GreedyPolicy,
     PlanningState,
@@ -17,6 +19,8 @@ from activetouch.planning.policies import (
     run_policy,
 )
 from activetouch.planning.synthetic import synthetic_problem
+from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
+from activetouch.recognition.histogram import HistogramSpec
 from tests.planning.test_mcts import (
     C_ROOT,
     ROOT_COUNTS,
@@ -161,3 +165,64 @@ def test_stop_condition_and_bad_names() -> None:
     per_class = make_policy("tree", PlannerConfig(eq4_sampling="per_class"), pr.model, pr.kernel)
     plan = per_class.plan(PlanningState.start(0, counts, cells), np.random.default_rng(0))
     assert plan.poses.size
+
+
+# --- absolute actions: a discriminating pose the relative model pools away -------------------
+
+
+def ring_problem(action_frame: str):
+    """Two classes grasped at the same six poses on a ring (pose k at 60k degrees, rotated about
+    z by the same angle). Every pose but the opposite one (k = 3) gives both classes the same
+    triangle; there class a and class b differ. Relative actions pool "move k steps" over the
+    ring (rotational symmetry), so every move looks alike and the cheapest wins; absolute
+    actions know that only pose 3 tells the classes apart."""
+    spec = HistogramSpec(lo=np.array([0.0, 0.0, 1.0]), hi=np.array([0.2, 0.2, 3.2]), bins=2)
+    shared, only_a, only_b = [0.10, 0.09, 2.0], [0.05, 0.04, 1.5], [0.13, 0.05, 2.6]
+    th = np.deg2rad(60.0 * np.arange(6))
+    poses = np.concatenate(
+        [
+            np.stack([0.2 * np.cos(th), 0.2 * np.sin(th), np.zeros(6)], 1),
+            Rotation.from_rotvec(np.stack([np.zeros(6), np.zeros(6), th], 1)).as_quat(),
+        ],
+        axis=1,
+    )
+
+    def grasps(special: list[float]) -> list[np.ndarray]:
+        return [np.array([special if k == 3 else shared]) for k in range(6)]
+
+    objs = [("a", poses, grasps(only_a)), ("b", poses, grasps(only_b))]
+    model = build_observation_model(objs, spec, ObservationConfig(action_frame=action_frame))
+    ba, bb = (int(spec.bin_index(np.array([t]))[0]) for t in (only_a, only_b))
+    W = np.zeros((2, spec.n_bins))
+    W[0, ba], W[0, bb], W[1, ba], W[1, bb] = 1.0, -1.0, -1.0, 1.0
+    kernel = ClassifierKernel(
+        kind=KIND_LINEAR_OVR,
+        W=W,
+        b=np.zeros(2),
+        row_class=np.array([0, 1], dtype=np.int64),
+        platt_a=np.array([-20.0, -20.0]),
+        platt_b=np.zeros(2),
+        temperature=1.0,
+        n_classes=2,
+    )
+    counts = np.bincount(spec.bin_index(np.array([shared])), minlength=spec.n_bins).astype(float)
+    start = PlanningState.start(0, counts, model.cells_of(np.array([shared])))
+    return model, kernel, start
+
+
+def test_absolute_actions_find_the_discriminating_pose() -> None:
+    rel, kernel, start = ring_problem("relative")
+    ab, _, _ = ring_problem("absolute")
+    assert rel.n_poses == ab.n_poses == 6 and rel.n_actions == 5 and ab.n_actions == 6
+    cfg = PlannerConfig(horizon=2, simulations=3000, lam=0.2)
+    g_ab = make_policy("greedy", cfg, ab, kernel).plan(start, np.random.default_rng(0))
+    g_rel = make_policy("greedy", cfg, rel, kernel).plan(start, np.random.default_rng(0))
+    assert g_ab.poses.tolist() == [3]
+    assert g_rel.poses.tolist() in ([1], [5])  # every move looks alike: the cheapest
+    t_ab = make_policy("tree", cfg, ab, kernel).plan(start, np.random.default_rng(0))
+    assert 3 in t_ab.poses.tolist()
+    # The search charges the move, not the target: 0 -> 3 costs more than 1 -> 3 would.
+    e03 = int(np.flatnonzero(ab.edge_target[: ab.edge_ptr[1]] == 3)[0])
+    lo1 = int(ab.edge_ptr[1])
+    e13 = lo1 + int(np.flatnonzero(ab.edge_target[lo1 : ab.edge_ptr[2]] == 3)[0])
+    assert ab.edge_action[e03] == ab.edge_action[e13] and ab.edge_cost[e03] > ab.edge_cost[e13]
