@@ -248,7 +248,12 @@ def load_config(
             raise ConfigError(f"{p}: no such config file") from None
         except tomllib.TOMLDecodeError as e:
             raise ConfigError(f"{p}: not valid TOML: {e}") from None
-        _apply(cfg, data, "")
+        except (OSError, UnicodeDecodeError) as e:
+            raise ConfigError(f"{p}: cannot read the config file ({e})") from None
+        try:
+            _apply(cfg, data, "")
+        except ConfigError as e:
+            raise ConfigError(f"{p}: {e}") from None
     for item in overrides or []:
         if "=" not in item:
             raise ConfigError(f"override {item!r}: expected section.key=value")
@@ -262,7 +267,26 @@ def load_config(
         for part in reversed(parts[:-1]):
             nested = {part: nested}
         _apply(cfg, nested, "")
+    _check_choices(cfg)
     return cfg
+
+
+# Settings that take one of a few words; anything else is refused when the config is loaded.
+CHOICES: dict[str, tuple[str, ...]] = {
+    "recognition.classifier": ("svm", "nn_inner", "nn_intersection"),
+    "observation.granularity": ("triangle", "grasp"),
+    "observation.action_frame": ("relative", "absolute"),
+    "planner.policy": ("tree", "greedy", "random"),
+    "planner.eq4_sampling": ("renormalise", "per_class"),
+}
+
+
+def _check_choices(cfg: Config) -> None:
+    for dotted, allowed in CHOICES.items():
+        section, key = dotted.split(".")
+        value = getattr(getattr(cfg, section), key)
+        if value not in allowed:
+            raise ConfigError(f"{dotted}: {value!r} is not one of {', '.join(allowed)}")
 
 
 def as_dict(cfg: Any) -> dict[str, Any]:

@@ -43,3 +43,19 @@ def test_missing_file_and_bad_override(tmp_path):
         load_config(tmp_path / "nope.toml")
     with pytest.raises(ConfigError, match=r"expected section\.key=value"):
         load_config(None, ["planner.horizon"])
+
+
+def test_words_outside_their_choices_are_refused():
+    with pytest.raises(ConfigError, match=r"recognition\.classifier: 'bogus' is not one of"):
+        load_config(None, ["recognition.classifier=bogus"])
+    with pytest.raises(ConfigError, match=r"observation\.granularity"):
+        load_config(None, ["observation.granularity=pixels"])
+
+
+def test_file_errors_name_the_file(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text("[planner]\nhorizon = 'x'\n")
+    with pytest.raises(ConfigError, match=r"c\.toml: planner\.horizon: expected an integer"):
+        load_config(f)
+    with pytest.raises(ConfigError, match="cannot read the config file"):
+        load_config(tmp_path)  # a directory

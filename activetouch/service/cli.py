@@ -71,6 +71,12 @@ def main(argv: list[str] | None = None) -> int:
     except ActiveTouchError as e:
         Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {e}", highlight=False)
         return 2
+    except OSError as e:
+        # A path the user gave is missing, not a directory, read-only, full...: one line.
+        where = f": {e.filename}" if e.filename else ""
+        msg = f"{e.strerror or e}{where}"
+        Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {msg}", highlight=False)
+        return 2
     except KeyboardInterrupt:
         Console(stderr=True).print("interrupted")
         return 130

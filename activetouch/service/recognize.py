@@ -29,7 +29,9 @@ def load_trained(path: Path) -> TrainedModel:
     return load_model(path)
 
 
-def check_request(policy: str, max_moves: int) -> None:
+def check_request(policy: str, max_moves: int, seed: int = 0) -> None:
+    if seed < 0:
+        raise ConfigError(f"the seed must be >= 0, got {seed}")
     if policy not in POLICY_NAMES:
         raise ConfigError(f"unknown policy {policy!r}; choose from {', '.join(POLICY_NAMES)}")
     if max_moves < 1:
@@ -53,7 +55,7 @@ def recognize_in_twin(
     session_cfg = cfg.session
     if max_moves is not None:
         session_cfg = type(cfg.session)(**{**vars(cfg.session), "max_moves": int(max_moves)})
-    check_request(policy_name, session_cfg.max_moves)
+    check_request(policy_name, session_cfg.max_moves, seed)
     spec = library.get(object_name)
     policy = make_policy(policy_name, cfg.planner, model.observation, model.classifier.kernel())
     rng = np.random.default_rng(seed)

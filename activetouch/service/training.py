@@ -90,9 +90,14 @@ def collect(
                 for n in todo
             ]
             pending = set(futures)
-            while pending:
-                _, pending = cf.wait(pending, timeout=0.1)
-                _drain(queue, progress)
+            try:
+                while pending:
+                    _, pending = cf.wait(pending, timeout=0.1)
+                    _drain(queue, progress)
+            except KeyboardInterrupt:
+                # Objects not started are dropped; those running save their batches and end.
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
             _drain(queue, progress)
             stats.extend(f.result() for f in futures)
     return stats

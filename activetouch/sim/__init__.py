@@ -1,2 +1,25 @@
 """PyBullet twin: ReFlex hand with tactile sites, table, object library, training collection.
 Implements the same Hand / Arm interfaces as the real drivers."""
+
+import os
+import sys
+
+
+def _import_pybullet_quietly() -> None:
+    """PyBullet's C code prints its build date to stderr on every import (once per worker
+    process too), which buries the CLI's own messages; import it with fd 2 on /dev/null."""
+    if "pybullet" in sys.modules:
+        return
+    sys.stderr.flush()
+    saved = os.dup(2)
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        import pybullet  # noqa: F401
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
+_import_pybullet_quietly()

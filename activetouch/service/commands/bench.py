@@ -20,7 +20,9 @@ BENCHES: dict[str, str] = {
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="run a benchmark and print its figures")
     p.add_argument("target", choices=sorted(BENCHES), help="what to measure")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="options of that benchmark")
+    p.add_argument(
+        "rest", nargs=argparse.REMAINDER, metavar="OPTIONS", help="options of that benchmark"
+    )
     p.set_defaults(func=_run)
 
 

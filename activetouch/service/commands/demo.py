@@ -37,12 +37,16 @@ def run(args: argparse.Namespace) -> int:
     from activetouch.service.commands.recognize import format_progress
     from activetouch.service.commands.train import train
     from activetouch.service.messages import RecognizeRequest
-    from activetouch.service.recognize import load_trained, model_path
+    from activetouch.service.recognize import check_request, load_trained, model_path
 
     console = Console(soft_wrap=True)  # progress lines stay whole in logs
     root = paths.data_dir(args.data)
     cfg = load_config(args.config, args.overrides)
     seeds = parse_seeds(args.seeds)
+    check_request("tree", cfg.session.max_moves, args.seed)
+    library = ObjectLibrary(paths.objects_dir(root))
+    library.ensure_builtins()
+    library.get(args.object)  # an unknown object: say so before any work
     mdir = model_path(root, None)
     console.print(Rule("1. training in the twin"))
     if (mdir / "model.json").is_file():
@@ -50,7 +54,6 @@ def run(args: argparse.Namespace) -> int:
     else:
         train(root, list(PAPER_SIM_OBJECTS), args.config, args.overrides, None, None, None, console)
     load_trained(mdir)
-    ObjectLibrary(paths.objects_dir(root)).get(args.object)  # unknown object: say so now
     out = Path(args.out) if args.out else root / "reports" / "demo"
     out.mkdir(parents=True, exist_ok=True)
 

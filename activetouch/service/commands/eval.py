@@ -18,6 +18,7 @@ from activetouch.service.commands.train import parse_objects
 from activetouch.service.evaluation import make_jobs, parse_seeds, run_all, summarise
 from activetouch.service.recognize import check_request, load_trained, model_path
 from activetouch.service.report import write_report
+from activetouch.sim.objects import ObjectLibrary
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -65,6 +66,15 @@ def evaluate(
     model = load_trained(model_dir)
     objects = objects or list(model.class_names)
     library = paths.objects_dir(root)
+    # Everything that can be wrong is checked before hours of runs, not after.
+    lib = ObjectLibrary(library)
+    for o in objects:
+        lib.get(o)
+    for s in seeds:
+        check_request(policies[0], budget, s)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
     jobs = make_jobs(model_dir, library, objects, policies, seeds, budget, cfg)
     t0 = time.perf_counter()
     with Progress(

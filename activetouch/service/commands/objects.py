@@ -144,7 +144,11 @@ def _dataset(root: Path, name: str, console: Console):
     """The collected dataset to draw poses and contacts from, or None if there is none."""
     path = paths.datasets_dir(root) / name
     if not path.exists():
-        return None
+        if name == paths.DEFAULT_DATASET:
+            return None  # nothing trained yet: draw the meshes alone
+        d = paths.datasets_dir(root)
+        have = sorted(p.name for p in d.iterdir() if p.is_dir()) if d.is_dir() else []
+        raise DataError(f"no dataset {name!r} in {d} (has: {', '.join(have) or 'none'})")
     from activetouch.recognition.dataset import Dataset
 
     try:

@@ -17,7 +17,12 @@ from activetouch.config import Config, load_config
 from activetouch.errors import ActiveTouchError, ConfigError
 from activetouch.planning.policies import POLICY_NAMES
 from activetouch.service.messages import RecognizeRequest
-from activetouch.service.recognize import load_trained, model_path, recognize_in_twin
+from activetouch.service.recognize import (
+    check_request,
+    load_trained,
+    model_path,
+    recognize_in_twin,
+)
 from activetouch.service.session import Progress, RecognitionResult
 from activetouch.sim.objects import ObjectLibrary
 
@@ -88,11 +93,26 @@ def run(args: argparse.Namespace) -> int:
     # With --json, stdout carries only the JSON object; progress goes to stderr.
     console = Console(stderr=args.json, soft_wrap=True)  # progress lines stay whole in logs
     if args.connect:
+        if args.config or args.overrides:
+            console.print(
+                "[yellow]note:[/] --config / --set apply to this client only; the daemon "
+                "plans and stops with its own configuration (serve --config)",
+                highlight=False,
+            )
         return run_remote(args, cfg, policy, console)
     if not args.object:
         raise ConfigError("--object is required: the twin needs the object to place")
+    budget = args.max_moves if args.max_moves is not None else cfg.session.max_moves
+    check_request(policy, budget, args.seed)
     model = load_trained(model_path(root, args.model))
     library = ObjectLibrary(paths.objects_dir(root))
+    library.get(args.object)  # an unknown object fails here, before anything runs
+    if args.object not in model.class_names:
+        console.print(
+            f"[yellow]note:[/] {args.object} is not one of the model's classes "
+            f"({', '.join(model.class_names)}): the answer can only be the nearest of those",
+            highlight=False,
+        )
     console.print(
         f"recognising [bold]{args.object}[/] with the {policy} policy "
         f"({model.n_classes} known objects, seed {args.seed})"

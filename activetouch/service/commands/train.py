@@ -91,6 +91,12 @@ def train(
     for s in sorted(stats, key=lambda s: names.index(s.name)):
         table.add_row(s.name, str(s.grasped), str(s.skipped), str(s.already_done))
     console.print(table)
+    if any(s.skipped for s in stats):
+        console.print(
+            "unreachable: poses where the open hand (fingers flat, ~0.38 m across) would meet "
+            "the table; they are skipped, as on the robot",
+            highlight=False,
+        )
     obs = model.observation
     console.print(
         f"collected in {t_collect:.1f} s, fitted in {t_fit:.1f} s: {len(names)} classes, "

@@ -65,3 +65,74 @@ def test_recognize_user_mistakes_are_one_line(trained_home, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "Traceback" not in err
     assert "unicorn" in err and "psychic" in err and "no model" in err
+
+
+def test_more_user_mistakes_fail_before_any_work(trained_home, tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert main(["recognize", "--object", "cup", "--data", str(trained_home), "--seed", "-1"]) == 2
+    assert main(["eval", "--data", str(trained_home), "--seeds", "0", "--out", str(afile)]) == 2
+    assert (
+        main(
+            [
+                "eval",
+                "--data",
+                str(trained_home),
+                "--objects",
+                "nosuch",
+                "--out",
+                str(tmp_path / "r"),
+            ]
+        )
+        == 2
+    )
+    assert (
+        main(
+            [
+                "objects",
+                "render",
+                "cup",
+                "--data",
+                str(trained_home),
+                "--dataset",
+                "nosuch",
+                "--out",
+                str(tmp_path / "png"),
+            ]
+        )
+        == 2
+    )
+    assert main(["train", "--data", str(afile)]) == 2  # an OSError, as one line
+    assert (
+        main(
+            [
+                "recognize",
+                "--object",
+                "cup",
+                "--data",
+                str(trained_home),
+                "--set",
+                "recognition.classifier=bogus",
+            ]
+        )
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    for text in (
+        "seed must be >= 0",
+        "not a directory",
+        "nosuch",
+        "no dataset 'nosuch'",
+        "recognition.classifier",
+    ):
+        assert text in err, text
+    assert not (tmp_path / "r").exists()  # nothing was run or written
+
+
+def test_an_object_outside_the_model_is_announced(trained_home, capsys):
+    assert (
+        main(["recognize", "--object", "teapot", "--data", str(trained_home), "--max-moves", "1"])
+        == 0
+    )
+    assert "is not one of the model's classes" in capsys.readouterr().out
