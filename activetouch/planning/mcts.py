@@ -58,6 +58,8 @@ from activetouch.recognition.classifiers import (
     KIND_NN_INTERSECTION,
     ClassifierKernel,
     kernel_proba,
+    normalise_or_uniform,
+    softmin_into,
 )
 
 # Draws before a uniform pick among the remaining edges falls back to a full scan.
@@ -193,22 +195,8 @@ def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
             d = 1.0 - min(1.0, abs(S[m]) / norm)
             if d < dmin[row_class[m]]:
                 dmin[row_class[m]] = d
-        best = np.inf
-        for k in range(n_classes):
-            if dmin[k] < best:
-                best = dmin[k]
-        for k in range(n_classes):
-            out[k] = np.exp(-(dmin[k] - best) / temperature)
-    norm_p = 0.0
-    for k in range(n_classes):
-        norm_p += out[k]
-    if norm_p <= 0.0:
-        for k in range(n_classes):
-            out[k] = 1.0 / n_classes
-        return out
-    for k in range(n_classes):
-        out[k] /= norm_p
-    return out
+        softmin_into(dmin, temperature, out)
+    return normalise_or_uniform(out)
 
 
 @njit(cache=True)

@@ -92,6 +92,28 @@ class ClassifierKernel:
 
 # "reassoc" lets LLVM vectorise the dot-product loops (a different summation order changes the
 # result by rounding only); no other fast-math flag, so inf and NaN keep their meaning.
+@njit(cache=True)
+def softmin_into(dmin: np.ndarray, temperature: float, out: np.ndarray) -> None:
+    """out[k] = exp(-(dmin[k] - min(dmin)) / temperature): NN distances to probabilities."""
+    best = np.inf
+    for k in range(dmin.shape[0]):
+        if dmin[k] < best:
+            best = dmin[k]
+    for k in range(dmin.shape[0]):
+        out[k] = np.exp(-(dmin[k] - best) / temperature)
+
+
+@njit(cache=True)
+def normalise_or_uniform(out: np.ndarray) -> np.ndarray:
+    """`out` scaled to sum to 1 in place; uniform when it sums to zero."""
+    total = 0.0
+    for k in range(out.shape[0]):
+        total += out[k]
+    for k in range(out.shape[0]):
+        out[k] = out[k] / total if total > 0.0 else 1.0 / out.shape[0]
+    return out
+
+
 @njit(cache=True, fastmath={"reassoc"})
 def kernel_proba(
     kind: int,
@@ -151,22 +173,8 @@ def kernel_proba(
                 d = 1.0 - s
                 if d < dmin[row_class[m]]:
                     dmin[row_class[m]] = d
-        best = np.inf
-        for k in range(n_classes):
-            if dmin[k] < best:
-                best = dmin[k]
-        for k in range(n_classes):
-            out[k] = np.exp(-(dmin[k] - best) / temperature)
-    norm_p = 0.0
-    for k in range(n_classes):
-        norm_p += out[k]
-    if norm_p <= 0.0:
-        for k in range(n_classes):
-            out[k] = 1.0 / n_classes
-        return out
-    for k in range(n_classes):
-        out[k] /= norm_p
-    return out
+        softmin_into(dmin, temperature, out)
+    return normalise_or_uniform(out)
 
 
 # ---------------------------------------------------------------------------------------------
