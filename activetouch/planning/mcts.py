@@ -313,6 +313,28 @@ def _sample_outcome(
 
 
 @njit(cache=True)
+def _observe(
+    m: tuple,
+    kern: tuple,
+    action: int,
+    cell: int,
+    hist: np.ndarray,
+    S: np.ndarray,
+    rows: np.ndarray,
+    counters: np.ndarray,
+    per_class: bool,
+) -> tuple:
+    """One simulated observation (Eq. 4) added to the histogram and its scores; returns the
+    outcome (-1: nothing observed) and the cell it leaves (-1 then too)."""
+    o = _sample_outcome(m, kern, action, cell, hist, S, rows, counters, per_class)
+    if o < 0:
+        return o, -1
+    out_cell, out_ptr, out_bin = m[4], m[5], m[6]  # model_tuple's order
+    _scores_add(kern, out_ptr, out_bin, o, hist, S)
+    return o, out_cell[o]
+
+
+@njit(cache=True)
 def _add_outcome(out_ptr: np.ndarray, out_bin: np.ndarray, o: int, hist: np.ndarray, sign: float):
     for i in range(out_ptr[o], out_ptr[o + 1]):
         hist[out_bin[i]] += sign
@@ -445,7 +467,7 @@ def _run_simulations(
         edge_action,
         edge_target,
         edge_cost,
-        out_cell,
+        _out_cell,
         out_ptr,
         out_bin,
         _tk,
@@ -512,12 +534,7 @@ def _run_simulations(
             e = rec_edge[rec]
             a = edge_action[e]
             move += edge_cost[e]
-            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters, per_class)
-            if o >= 0:
-                _scores_add(kern, out_ptr, out_bin, o, hist, S)
-                cell = out_cell[o]
-            else:
-                cell = -1
+            o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
             pose = edge_target[e]
             used[pose] = True
             path_pose[depth] = pose
@@ -552,12 +569,7 @@ def _run_simulations(
                 break
             a = edge_action[e]
             move += edge_cost[e]
-            o = _sample_outcome(m, kern, a, cell, hist, S, rows, counters, per_class)
-            if o >= 0:
-                _scores_add(kern, out_ptr, out_bin, o, hist, S)
-                cell = out_cell[o]
-            else:
-                cell = -1
+            o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
             pose = edge_target[e]
             used[pose] = True
             path_pose[depth] = pose
