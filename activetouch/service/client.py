@@ -45,14 +45,11 @@ from activetouch.service.messages import (
     Reply,
     Status,
     decode,
-    encode,
 )
 from activetouch.service.nodes import (
     _DONE,
     _GONE,
     _GRACE_S,
-    JSON,
-    TIMEOUT_PARAM,
     _direct,
     _RemoteNode,
 )
@@ -142,16 +139,7 @@ class DaemonClient(_RemoteNode):
             self._pending.add(q)
         start = time.monotonic()
         try:
-            try:
-                self._session.get(
-                    f"{self.keys.recognize}?{TIMEOUT_PARAM}={timeout:g}",
-                    _direct(q.put, lambda: q.put(_DONE)),
-                    payload=encode(request),
-                    encoding=JSON,
-                    timeout=timeout,
-                )
-            except Exception as e:  # e.g. the session is closed
-                raise NodeUnavailableError(f"cannot query {self.keys.recognize}: {e}") from None
+            self._query(self.keys.recognize, request, q, timeout)
             deadline = start + timeout + _GRACE_S
             reply: Reply | None = None
             gone = False

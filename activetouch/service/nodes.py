@@ -475,6 +475,20 @@ class _RemoteNode:
             f"{self.alive_key} dropped); {op} not done"
         )
 
+    def _query(self, key: str, request: Message, q: queue.SimpleQueue, timeout: float) -> None:
+        """Send `request` to `key`; replies go to `q`, then `_DONE`. The timeout travels with
+        the query so the node can drop it once the caller has given up."""
+        try:
+            self._session.get(
+                f"{key}?{TIMEOUT_PARAM}={timeout:g}",
+                _direct(q.put, lambda: q.put(_DONE)),
+                payload=encode(request),
+                encoding=JSON,
+                timeout=timeout,
+            )
+        except Exception as e:  # e.g. the session is closed
+            raise NodeUnavailableError(f"cannot query {key}: {e}") from None
+
     def _call(
         self, op: str, key: str, request: Message, result_type: Any, timeout: float | None = None
     ) -> Any:
@@ -486,16 +500,7 @@ class _RemoteNode:
             self._pending.add(q)
         start = time.monotonic()
         try:
-            try:
-                self._session.get(
-                    f"{key}?{TIMEOUT_PARAM}={timeout:g}",
-                    _direct(q.put, lambda: q.put(_DONE)),
-                    payload=encode(request),
-                    encoding=JSON,
-                    timeout=timeout,
-                )
-            except Exception as e:  # e.g. the session is closed
-                raise NodeUnavailableError(f"cannot query {key}: {e}") from None
+            self._query(key, request, q, timeout)
             deadline = start + timeout + _GRACE_S
             while True:
                 try:
