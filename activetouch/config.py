@@ -81,6 +81,10 @@ class GridConfig:
     # would be two observations under one action. Add 0.8 (spherical) as its own grid if wanted.
     preshape: float = 0.0
     min_wrist_height_m: float = 0.03  # hand frame origin above the table top
+    # "shared": every object is grasped at the union of all training objects' grids, so each
+    # class has data at every pose the planner can choose at test time (the object, hence its
+    # grid, is unknown then). "per_object": each object at its own grid only (the paper).
+    layout: str = "shared"
 
 
 @dataclass
@@ -278,6 +282,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "observation.action_frame": ("relative", "absolute"),
     "planner.policy": ("tree", "greedy", "random"),
     "planner.eq4_sampling": ("renormalise", "per_class"),
+    "grid.layout": ("shared", "per_object"),
 }
 
 

@@ -7,6 +7,8 @@ below the table are dropped. Pure math: no simulator, so the real robot uses the
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,3 +84,35 @@ def training_grid(extents: np.ndarray, cfg: GridConfig) -> GridPoses:
         poses=np.asarray(poses, dtype=np.float64).reshape(-1, 7),
         preshapes=np.asarray(preshapes, dtype=np.float64),
     )
+
+
+def pose_content_id(pose: np.ndarray) -> int:
+    """A stable 56-bit id of a pose (rounded to 0.1 mm and 1e-5 per quaternion component), so
+    a shared grid's ids do not depend on which objects contributed the pose."""
+    key = np.round(np.asarray(pose, dtype=np.float64) * np.array([1e4] * 3 + [1e5] * 4))
+    digest = hashlib.blake2b(key.astype(np.int64).tobytes(), digest_size=7).digest()
+    return int.from_bytes(digest, "little")
+
+
+def shared_grid(extents: Mapping[str, np.ndarray], cfg: GridConfig) -> GridPoses:
+    """The union of the grids of every object in `extents` (name -> bounding-box sizes).
+
+    At test time the object is unknown, so the planner chooses among the poses of every
+    object's grid; grasping each object at all of them gives every class data at every pose it
+    can be asked about. Ids come from the pose itself (`pose_content_id`): adding an object
+    keeps the ids of the poses already collected, and equal poses appear once."""
+    parts = [training_grid(extents[name], cfg) for name in sorted(extents)]
+    poses = np.concatenate([g.poses for g in parts]).reshape(-1, 7)
+    preshapes = np.concatenate([g.preshapes for g in parts])
+    ids = np.array([pose_content_id(p) for p in poses], dtype=np.int64)
+    _, first = np.unique(ids, return_index=True)
+    keep = np.sort(first)
+    return GridPoses(pose_ids=ids[keep], poses=poses[keep], preshapes=preshapes[keep])
+
+
+def object_grids(extents: Mapping[str, np.ndarray], cfg: GridConfig) -> dict[str, GridPoses]:
+    """The grid each object is collected at, following `cfg.layout`."""
+    if cfg.layout == "shared":
+        grid = shared_grid(extents, cfg)
+        return {name: grid for name in extents}
+    return {name: training_grid(ext, cfg) for name, ext in extents.items()}

@@ -24,6 +24,8 @@ from activetouch.model import TrainedModel
 from activetouch.planning.policies import Plan, PlanningState, Policy
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
 
+NO_LABEL = ""  # the label while no grasp has given a triangle (nothing felt to classify)
+
 
 @dataclass(frozen=True)
 class Progress:
@@ -40,9 +42,9 @@ class Progress:
 
 @dataclass
 class RecognitionResult:
-    label: str
+    label: str  # NO_LABEL if nothing was felt
     probability: float
-    labels: list[str] = field(default_factory=list)  # after each grasp
+    labels: list[str] = field(default_factory=list)  # after each grasp, NO_LABEL before a triangle
     probabilities: list[list[float]] = field(default_factory=list)  # p(y|h) after each grasp
     pose_ids: list[int] = field(default_factory=list)  # executed, in order
     contacts: list[np.ndarray] = field(default_factory=list)  # per grasp (n, 3), object frame
@@ -55,6 +57,10 @@ class RecognitionResult:
     @property
     def moves(self) -> int:
         return len(self.labels)
+
+
+def display_label(label: str) -> str:
+    return label if label != NO_LABEL else "nothing (no triangle felt)"
 
 
 def top_k(p: np.ndarray, names: tuple[str, ...], k: int = 3) -> list[tuple[str, float]]:
@@ -126,12 +132,13 @@ class RecognitionSession:
             )
             p = self.model.proba(counts)
             best = int(np.argmax(p))
-            res.labels.append(names[best])
+            # No triangle yet: p is uniform and its argmax (class 0) says nothing.
+            res.labels.append(names[best] if counts.any() else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
             res.contacts.append(hand_to_object(pose, grasp.xyz))
             # Consecutive confident grasps agreeing on the same top class.
-            if p[best] < self.cfg.confidence:
+            if p[best] < self.cfg.confidence or not counts.any():
                 streak = 0
             elif streak > 0 and res.labels[-2] == names[best]:
                 streak += 1

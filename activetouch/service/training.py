@@ -12,7 +12,7 @@ from pathlib import Path
 
 from activetouch.config import Config
 from activetouch.model import TrainedModel, train_model
-from activetouch.planning.grid import training_grid
+from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset
 from activetouch.service.collect import CollectStats, collect_object, pending_poses
 from activetouch.sim.objects import ObjectLibrary
@@ -31,13 +31,17 @@ def dataset_meta(cfg: Config) -> dict:
 
 
 def _collect_one(
-    library_root: str, dataset_path: str, name: str, cfg: Config, queue: object | None
+    library_root: str,
+    dataset_path: str,
+    name: str,
+    grid: GridPoses,
+    cfg: Config,
+    queue: object | None,
 ) -> CollectStats:
     # Runs in a worker process: it opens its own simulator client and dataset handle.
     from activetouch.sim.twin import open_twin
 
     spec = ObjectLibrary(library_root).get(name)
-    grid = training_grid(spec.extents, cfg.grid)
     ds = Dataset.open(dataset_path)
 
     def report(done: int, total: int) -> None:
@@ -69,7 +73,7 @@ def collect(
     """Collect every missing grasp of `names` into the dataset at `dataset_path`."""
     specs = {n: library.get(n) for n in names}  # unknown names fail here, before any work
     ds = Dataset.create_or_open(dataset_path, dataset_meta(cfg))
-    grids = {n: training_grid(specs[n].extents, cfg.grid) for n in names}
+    grids = object_grids({n: specs[n].extents for n in names}, cfg.grid)
     todo = [n for n in names if pending_poses(ds, n, grids[n])]
     stats = [CollectStats(name=n, already_done=len(grids[n])) for n in names if n not in todo]
     if not todo:
@@ -78,7 +82,7 @@ def collect(
     if workers == 1:
         for n in todo:
             q = _CallbackQueue(progress)
-            stats.append(_collect_one(str(library.root), str(dataset_path), n, cfg, q))
+            stats.append(_collect_one(str(library.root), str(dataset_path), n, grids[n], cfg, q))
         return stats
     # Spawn, not fork: PyBullet and Zenoh keep threads and state that do not survive fork().
     ctx = mp.get_context("spawn")
@@ -86,7 +90,9 @@ def collect(
         queue = manager.Queue()
         with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
             futures = [
-                pool.submit(_collect_one, str(library.root), str(dataset_path), n, cfg, queue)
+                pool.submit(
+                    _collect_one, str(library.root), str(dataset_path), n, grids[n], cfg, queue
+                )
                 for n in todo
             ]
             pending = set(futures)

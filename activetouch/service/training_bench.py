@@ -17,7 +17,7 @@ from rich.table import Table
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.planning.grid import training_grid
+from activetouch.planning.grid import object_grids
 from activetouch.service.training import collect, fit_and_save
 from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
 
@@ -33,7 +33,8 @@ def run(workers: int | None, overrides: list[str], names: list[str] | None = Non
         lib = ObjectLibrary(paths.objects_dir(root))
         lib.ensure_builtins(names)
         t_objects = time.perf_counter() - t0
-        grid_poses = sum(len(training_grid(lib.get(n).extents, cfg.grid)) for n in names)
+        grids = object_grids({n: lib.get(n).extents for n in names}, cfg.grid)
+        grid_poses = sum(len(g) for g in grids.values())
         t1 = time.perf_counter()
         stats = collect(lib, paths.default_dataset(root), names, cfg, workers=workers)
         t_collect = time.perf_counter() - t1

@@ -3,7 +3,12 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from activetouch.config import GridConfig
-from activetouch.planning.grid import look_at_quaternion, training_grid
+from activetouch.planning.grid import (
+    look_at_quaternion,
+    object_grids,
+    shared_grid,
+    training_grid,
+)
 
 
 def test_palm_faces_centre_and_lies_on_ellipsoid():
@@ -50,3 +55,28 @@ def test_bad_extents_are_rejected():
 def test_look_at_straight_down_is_well_defined():
     q = look_at_quaternion(np.array([0.0, 0.0, -1.0]), 0.0)
     np.testing.assert_allclose(Rotation.from_quat(q).as_matrix()[:, 2], [0, 0, -1], atol=1e-12)
+
+
+def test_shared_grid_is_the_union_with_stable_content_ids():
+    cfg = GridConfig()
+    small, big = np.array([0.06, 0.06, 0.1]), np.array([0.2, 0.2, 0.25])
+    both = shared_grid({"a": small, "b": big}, cfg)
+    own_a, own_b = training_grid(small, cfg), training_grid(big, cfg)
+    assert len(both) == len(own_a) + len(own_b)
+    assert len(np.unique(both.pose_ids)) == len(both)
+    # Adding an object keeps the ids (and poses) of the ones already there.
+    more = shared_grid({"a": small, "b": big, "c": np.array([0.1, 0.1, 0.1])}, cfg)
+    assert set(both.pose_ids.tolist()) <= set(more.pose_ids.tolist())
+    ids = dict(zip(more.pose_ids.tolist(), map(tuple, more.poses), strict=True))
+    for pid, pose in zip(both.pose_ids.tolist(), both.poses, strict=True):
+        assert ids[pid] == tuple(pose)
+    # Equal objects contribute equal poses once.
+    assert len(shared_grid({"a": small, "a2": small}, cfg)) == len(own_a)
+
+
+def test_object_grids_follow_the_layout():
+    ext = {"a": np.array([0.06, 0.06, 0.1]), "b": np.array([0.2, 0.2, 0.25])}
+    shared = object_grids(ext, GridConfig(layout="shared"))
+    assert shared["a"] is shared["b"]
+    own = object_grids(ext, GridConfig(layout="per_object"))
+    np.testing.assert_array_equal(own["a"].poses, training_grid(ext["a"], GridConfig()).poses)

@@ -7,10 +7,10 @@ import pytest
 
 from activetouch import paths
 from activetouch.errors import ConfigError, UnreachableError
-from activetouch.interfaces import Pose
+from activetouch.interfaces import Grasp, Pose
 from activetouch.planning.policies import make_policy
 from activetouch.service.recognize import recognize_in_twin
-from activetouch.service.session import RecognitionSession
+from activetouch.service.session import NO_LABEL, RecognitionSession, display_label
 from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
 
@@ -120,3 +120,44 @@ def test_bad_budget_is_a_clear_error(trained_home, small_model):
         _run(trained_home, small_model, max_moves=0)
     with pytest.raises(ConfigError, match="unknown policy"):
         _run(trained_home, small_model, policy="psychic")
+
+
+class NumbFirstHand:
+    """Wraps the twin's hand; the first guarded close feels nothing."""
+
+    def __init__(self, hand):
+        self.hand = hand
+        self.closes = 0
+
+    def __getattr__(self, name):
+        return getattr(self.hand, name)
+
+    def guarded_close(self):
+        self.closes += 1
+        g = self.hand.guarded_close()
+        if self.closes == 1:
+            return Grasp(np.zeros(0), np.zeros((0, 3)), np.zeros(0), g.finger_angles)
+        return g
+
+
+def test_no_label_until_something_is_felt(trained_home, small_model):
+    # With an empty histogram p(y|h) is uniform; its argmax (class 0, the cup) must not count
+    # as a recognition of the cup.
+    cfg = small_config()
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    policy = make_policy(
+        "random", cfg.planner, small_model.observation, small_model.classifier.kernel()
+    )
+    with open_twin(lib.get("cup"), cfg.sim, seed=0) as twin:
+        s = RecognitionSession(
+            NumbFirstHand(twin.hand),
+            twin.arm,
+            small_model,
+            policy,  # type: ignore[arg-type]
+            type(cfg.session)(max_moves=3, confidence=1.1),
+            np.random.default_rng(0),
+        )
+        res = s.run()
+    assert res.labels[0] == NO_LABEL
+    assert res.probabilities[0] == pytest.approx([1 / 3] * 3)
+    assert display_label(NO_LABEL) != NO_LABEL

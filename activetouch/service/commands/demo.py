@@ -16,6 +16,7 @@ from rich.rule import Rule
 from activetouch import paths
 from activetouch.config import load_config
 from activetouch.service.evaluation import parse_seeds
+from activetouch.service.session import display_label
 from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
 
 
@@ -86,8 +87,8 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"daemon exited with status {d.proc.returncode}")
     verdict = "[green]correct[/]" if res.label == args.object else "[red]wrong[/]"
     console.print(
-        f"recognised: [bold]{res.label}[/] (p = {res.probability:.2f}) after {res.moves} grasps "
-        f"— {verdict}"
+        f"recognised: [bold]{display_label(res.label)}[/] (p = {res.probability:.2f}) "
+        f"after {res.moves} grasps — {verdict}"
     )
 
     console.print(Rule("3. tree vs greedy vs random on every object"))

@@ -23,7 +23,7 @@ from activetouch.service.recognize import (
     model_path,
     recognize_in_twin,
 )
-from activetouch.service.session import Progress, RecognitionResult
+from activetouch.service.session import Progress, RecognitionResult, display_label
 from activetouch.sim.objects import ObjectLibrary
 
 
@@ -148,8 +148,9 @@ def _report(
     else:
         verdict = " — [green]correct[/]" if res.label == obj else " — [red]wrong[/]"
     console.print(
-        f"recognised: [bold]{res.label}[/] (p = {res.probability:.2f}) after {res.moves} "
-        f"grasps, {res.skipped} poses skipped, stopped: {res.stop_reason}{verdict}"
+        f"recognised: [bold]{display_label(res.label)}[/] (p = {res.probability:.2f}) "
+        f"after {res.moves} grasps, {res.skipped} poses skipped, "
+        f"stopped: {res.stop_reason}{verdict}"
     )
 
 
