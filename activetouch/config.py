@@ -66,6 +66,11 @@ class PlannerConfig:
     # classes that have data; "per_class" draws y from the full p(y|h) and lets that class
     # back off to its action-only row, else observe nothing (docs/planner.md).
     eq4_sampling: str = "renormalise"
+    # The recognition term of Eq. 1: "final" (the paper) scores 1 - max p(y | h_T) at the
+    # path's end only; "anytime" averages 1 - max p(y | h_t) over t = 1..T, so a path that is
+    # confident after its first grasps beats one that only gets there by its last (with T = 1
+    # both are Eq. 1).
+    objective: str = "final"
 
 
 @dataclass
@@ -282,6 +287,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "observation.action_frame": ("relative", "absolute"),
     "planner.policy": ("tree", "greedy", "random"),
     "planner.eq4_sampling": ("renormalise", "per_class"),
+    "planner.objective": ("final", "anytime"),
     "grid.layout": ("shared", "per_object"),
 }
 

@@ -16,7 +16,8 @@ One tree search (Alg. 3 run `simulations` times from a fresh root, then Alg. 2's
 - **Cost** (Eq. 1): ``C = lam / T * sum_t c_m(a_t) + (1 - lam) * (1 - max_y p(y | h_T))`` with
   ``p`` the classifier kernel on the simulated histogram counts; reward ``r = 1 - C``.
   ``c_m`` is the model's ``edge_cost`` of the step's edge: the paper's c_m(a) of its action for
-  relative actions, the cost of the move itself for absolute ones.
+  relative actions, the cost of the move itself for absolute ones. Option ``anytime``
+  (`planner.objective`) replaces ``1 - max_y p(y | h_T)`` by its mean over ``h_1 .. h_T``.
 - **Backup**: every edge on the stored path gets ``N_a += 1, Q_a += (r - Q_a) / N_a``. Like the
   paper ("C_{t_a} is C_T(pi)"), every depth stores the whole path's reward, so the value of
   an edge deep in the tree estimates the cost of the full root-to-leaf path.
@@ -442,6 +443,23 @@ def _select(
 
 
 @njit(cache=True)
+def _pmax(p: np.ndarray) -> float:
+    best = 0.0
+    for y in range(p.shape[0]):
+        if p[y] > best:
+            best = p[y]
+    return best
+
+
+@njit(cache=True)
+def _step_pmax(kern: tuple, hist: np.ndarray, S: np.ndarray, o: int, last: float) -> float:
+    """max p(y | h_t) after a step; a step that observed nothing leaves it as it was."""
+    if o < 0:
+        return last
+    return _pmax(_proba_scores(kern, hist, S))
+
+
+@njit(cache=True)
 def _run_simulations(
     m: tuple,
     kern: tuple,
@@ -454,6 +472,7 @@ def _run_simulations(
     c: float,
     lam: float,
     per_class: bool,
+    anytime: bool,
     seed: int,
     nodes: tuple,
     recs: tuple,
@@ -500,6 +519,7 @@ def _run_simulations(
     S0 = np.empty(M + 2)
     _scores_init(kern, hist, S0)
     S = S0.copy()
+    pmax0 = _pmax(_proba_scores(kern, hist, S0)) if anytime else 0.0
     path_recs = np.empty(horizon, dtype=np.int64)
     path_pose = np.empty(horizon, dtype=np.int64)
     path_out = np.empty(horizon, dtype=np.int64)
@@ -526,6 +546,8 @@ def _run_simulations(
             root_cells[np.random.randint(0, root_cells.shape[0])] if root_cells.shape[0] > 0 else -1
         )
         move = 0.0
+        pmax = pmax0  # anytime objective: max p(y | h_t) after each step, summed as unsure
+        unsure = 0.0
         # Tree policy (Alg. 4) until a node is created, depth T, or no edge is left.
         while depth < horizon:
             rec = _select(node, edge_ptr, edge_target, used, c, nodes, recs, n_recs, mark)
@@ -535,6 +557,9 @@ def _run_simulations(
             a = edge_action[e]
             move += edge_cost[e]
             o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
+            if anytime:
+                pmax = _step_pmax(kern, hist, S, o, pmax)
+                unsure += 1.0 - pmax
             pose = edge_target[e]
             used[pose] = True
             path_pose[depth] = pose
@@ -570,18 +595,22 @@ def _run_simulations(
             a = edge_action[e]
             move += edge_cost[e]
             o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
+            if anytime:
+                pmax = _step_pmax(kern, hist, S, o, pmax)
+                unsure += 1.0 - pmax
             pose = edge_target[e]
             used[pose] = True
             path_pose[depth] = pose
             path_out[depth] = o
             depth += 1
-        # Eq. 1 on the simulated histogram h_T.
-        p = _proba_scores(kern, hist, S)
-        pmax = 0.0
-        for y in range(p.shape[0]):
-            if p[y] > pmax:
-                pmax = p[y]
-        reward = 1.0 - (lam / horizon * move + (1.0 - lam) * (1.0 - pmax))
+        if anytime:
+            # Steps the path could not take (no pose left) keep the last confidence.
+            unsure += (horizon - depth) * (1.0 - pmax)
+            reward = 1.0 - (lam * move + (1.0 - lam) * unsure) / horizon
+        else:
+            # Eq. 1 on the simulated histogram h_T.
+            pmax = _pmax(_proba_scores(kern, hist, S))
+            reward = 1.0 - (lam / horizon * move + (1.0 - lam) * (1.0 - pmax))
         # Backup: running mean of the whole path's reward at every stored edge.
         for i in range(n_tree):
             rec = path_recs[i]
@@ -845,6 +874,7 @@ class TreeSearch:
         lam: float = 0.5,
         keep_tree: bool = False,
         per_class_backoff: bool = False,
+        anytime: bool = False,
     ) -> SearchResult:
         """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
 
@@ -901,6 +931,7 @@ class TreeSearch:
             np.float64(exploration_c),
             np.float64(lam),
             bool(per_class_backoff),
+            bool(anytime),
             np.int64(seed),
             nodes,
             recs,

@@ -107,6 +107,7 @@ class TreePolicy(Policy):
         lam: float = 0.5,
         replan_every_grasp: bool = False,
         eq4_sampling: str = "renormalise",
+        objective: str = "final",
     ) -> None:
         if horizon < 1:
             raise ConfigError(f"planner.horizon must be >= 1, got {horizon}")
@@ -128,6 +129,11 @@ class TreePolicy(Policy):
                 f"got {eq4_sampling!r}"
             )
         self.per_class_backoff = eq4_sampling == "per_class"
+        if objective not in OBJECTIVES:
+            raise ConfigError(
+                f"planner.objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}"
+            )
+        self.anytime = objective == "anytime"
 
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         res = self.search.search(
@@ -141,6 +147,7 @@ class TreePolicy(Policy):
             exploration_c=self.exploration_c,
             lam=self.lam,
             per_class_backoff=self.per_class_backoff,
+            anytime=self.anytime,
         )
         if res.exhausted:
             return _exhausted(self.name)
@@ -187,6 +194,7 @@ class RandomPolicy(Policy):
 
 POLICY_NAMES: tuple[str, ...] = ("tree", "greedy", "random")
 EQ4_SAMPLING: tuple[str, ...] = ("renormalise", "per_class")
+OBJECTIVES: tuple[str, ...] = ("final", "anytime")
 
 
 def make_policy(
@@ -201,6 +209,7 @@ def make_policy(
         "lam": cfg.lam,
         "replan_every_grasp": cfg.replan_every_grasp,
         "eq4_sampling": cfg.eq4_sampling,
+        "objective": cfg.objective,
     }
     if name == "tree":
         return TreePolicy(model, kernel, horizon=cfg.horizon, **kw)  # type: ignore[arg-type]

@@ -178,10 +178,13 @@ def path_cost(
     cell: int,
     horizon: int,
     lam: float = 0.5,
+    anytime: bool = False,
 ) -> float:
-    """Eq. 1 for a deterministic hand model (every row has one outcome), computed directly."""
+    """Eq. 1 for a deterministic hand model (every row has one outcome), computed directly;
+    `anytime`: the recognition term averaged over the steps instead of taken at the end."""
     h = counts.astype(float).copy()
     move = 0.0
+    unsure = 0.0
     pose = start
     for target in path:
         lo = model.edge_ptr[pose]
@@ -192,6 +195,9 @@ def path_cost(
         np.add.at(h, model.out_bin[model.out_ptr[o] : model.out_ptr[o + 1]], 1.0)
         cell = int(model.out_cell[o])
         pose = target
+        unsure += 1 - kernel.proba(h).max()
+    if anytime:
+        return (lam * move + (1 - lam) * unsure) / horizon
     return lam / horizon * move + (1 - lam) * (1 - kernel.proba(h).max())
 
 
@@ -268,6 +274,50 @@ def test_every_extracted_path_cost_matches_its_value() -> None:
         assert len(res.poses) == horizon
         c = path_cost(model, kernel, 0, res.poses.tolist(), ROOT_COUNTS, C_ROOT, horizon, lam)
         assert res.value == pytest.approx(1.0 - c, abs=1e-12)
+
+
+def test_anytime_objective_values_and_best_paths() -> None:
+    """The anytime objective: the value of an extracted path is its own cost, it finds the
+    exhaustive optimum of that cost, and with T = 1 it is Eq. 1."""
+    model, kernel = lookahead_problem(cost=0.3)
+    ts = TreeSearch(model, kernel)
+    for seed, horizon, lam in [(1, 1, 0.5), (2, 2, 0.2), (3, 3, 0.5)]:
+        kw = dict(horizon=horizon, simulations=3000, lam=lam)
+        res = ts.search(
+            0,
+            NO_POSES,
+            ROOT_COUNTS,
+            ROOT_CELLS,
+            rng=np.random.default_rng(seed),
+            anytime=True,
+            **kw,
+        )
+        c = path_cost(
+            model, kernel, 0, res.poses.tolist(), ROOT_COUNTS, C_ROOT, horizon, lam, anytime=True
+        )
+        assert res.value == pytest.approx(1.0 - c, abs=1e-12)
+        if horizon == 1:
+            final = ts.search(
+                0, NO_POSES, ROOT_COUNTS, ROOT_CELLS, rng=np.random.default_rng(seed), **kw
+            )
+            assert final.poses.tolist() == res.poses.tolist()
+            assert final.value == pytest.approx(res.value, abs=1e-12)
+    # A well-explored tree finds the exhaustive optimum of the anytime cost.
+    res = ts.search(
+        0,
+        NO_POSES,
+        ROOT_COUNTS,
+        ROOT_CELLS,
+        horizon=2,
+        simulations=20000,
+        rng=np.random.default_rng(0),
+        anytime=True,
+    )
+    costs = {
+        p: path_cost(model, kernel, 0, list(p), ROOT_COUNTS, C_ROOT, 2, anytime=True)
+        for p in itertools.permutations(range(1, model.n_poses), 2)
+    }
+    assert tuple(res.poses.tolist()) == min(costs, key=costs.get)
 
 
 def test_visited_poses_are_never_planned_and_paths_stop_when_poses_run_out() -> None:
