@@ -6,7 +6,7 @@ import pytest
 
 from activetouch import paths
 from activetouch.errors import DataError
-from activetouch.planning.grid import training_grid
+from activetouch.planning.grid import object_grids
 from activetouch.recognition.dataset import Dataset
 from activetouch.service.cli import main
 from activetouch.service.collect import SKIPPED_ATTR, collect_object
@@ -26,7 +26,7 @@ def test_interrupted_collection_resumes_without_repeating(tmp_path):
     lib = ObjectLibrary(paths.objects_dir(tmp_path))
     lib.ensure_builtins(["sphere"])
     spec = lib.get("sphere")
-    grid = training_grid(spec.extents, cfg.grid)
+    grid = object_grids({"sphere": spec.extents}, cfg.grid)["sphere"]
     ds = Dataset.create_or_open(tmp_path / "ds", dataset_meta(cfg))
 
     def crash_after_20(done: int, total: int) -> None:
