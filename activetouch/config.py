@@ -56,12 +56,17 @@ class ObservationConfig:
 
 @dataclass
 class PlannerConfig:
+    # Defaults measured in the twin (docs/planner.md, "What makes the tree win"); the paper's
+    # own settings are lam 0.5, 20 simulations, the whole path executed, objective "final".
     policy: str = "tree"  # tree | greedy | random
     horizon: int = 5
-    simulations: int = 20
+    simulations: int = 200
     exploration_c: float = 1.0
-    lam: float = 0.5  # weight of movement cost against misclassification (Eq. 1)
-    replan_every_grasp: bool = False
+    # Weight of the movement cost against misclassification (Eq. 1). The paper's 0.5 lets the
+    # movement term rank the poses (greedy then always takes the nearest); 0 counts grasps.
+    lam: float = 0.0
+    # Execute only the first pose of the path, then search again from the real grasp.
+    replan_every_grasp: bool = True
     # Eq. 4 when some classes have no data for (action, cell): "renormalise" draws y among the
     # classes that have data; "per_class" draws y from the full p(y|h) and lets that class
     # back off to its action-only row, else observe nothing (docs/planner.md).
@@ -70,7 +75,7 @@ class PlannerConfig:
     # path's end only; "anytime" averages 1 - max p(y | h_t) over t = 1..T, so a path that is
     # confident after its first grasps beats one that only gets there by its last (with T = 1
     # both are Eq. 1).
-    objective: str = "final"
+    objective: str = "anytime"
 
 
 @dataclass

@@ -50,7 +50,15 @@ def start_state() -> PlanningState:
 
 def test_tree_looks_ahead_where_greedy_does_not() -> None:
     model, kernel = lookahead_problem()
-    cfg = PlannerConfig(policy="tree", horizon=2, simulations=20000)
+    # The paper's objective and scheme (the problem is built for Eq. 1 on h_T).
+    cfg = PlannerConfig(
+        policy="tree",
+        horizon=2,
+        simulations=20000,
+        lam=0.5,
+        objective="final",
+        replan_every_grasp=False,
+    )
     tree = make_policy("tree", cfg, model, kernel)
     greedy = make_policy("greedy", cfg, model, kernel)
     assert isinstance(tree, TreePolicy) and isinstance(greedy, GreedyPolicy)
@@ -73,7 +81,9 @@ def test_tree_looks_ahead_where_greedy_does_not() -> None:
 
 def test_replanning_mode_executes_one_pose_per_tree() -> None:
     model, kernel = lookahead_problem()
-    cfg = PlannerConfig(horizon=2, simulations=20000, replan_every_grasp=True)
+    cfg = PlannerConfig(
+        horizon=2, simulations=20000, lam=0.5, objective="final", replan_every_grasp=True
+    )
     tree = make_policy("tree", cfg, model, kernel)
     plan = tree.plan(start_state(), np.random.default_rng(0))
     assert plan.poses.tolist() == [2]
