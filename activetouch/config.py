@@ -40,14 +40,17 @@ class RecognitionConfig:
 
 @dataclass
 class ObservationConfig:
-    granularity: str = "triangle"  # triangle (the paper) | grasp
+    # One observation is a whole grasp's triangles ("grasp", measured best in the twin:
+    # docs/planner.md) or a single triangle ("triangle", the paper).
+    granularity: str = "grasp"
     translation_cell_m: float = 0.06
     quaternion_cell: float = 0.05
     triangle_cell: float = 0.08
     # How an edge p -> q is keyed: "relative" (the paper: the discretised pose of q in p's
     # frame, pooled over objects) or "absolute" (the discretised nominal pose q itself: class y
-    # answers with what its own grasp at, or near, q looked like; docs/planner.md).
-    action_frame: str = "relative"
+    # answers with what its own grasp at, or near, q looked like; docs/planner.md). Absolute
+    # is the default: with the shared grid every class has a grasp at every pose.
+    action_frame: str = "absolute"
     # "absolute" only: a class without a grasp at q's cell answers with its grasp nearest to q
     # if that lies within these (the objects' grids differ in radius, not in direction).
     absolute_near_m: float = 0.06

@@ -118,7 +118,9 @@ def test_discretise_and_canonical_quat() -> None:
 
 
 def test_hand_built_triangle_tallies() -> None:
-    m = build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="triangle"))
+    m = build_observation_model(
+        hand_built(), SPEC, ObservationConfig(action_frame="relative", granularity="triangle")
+    )
     m.validate()
     assert m.class_names == ("a", "b") and m.n_bins == 8
     assert m.n_poses == 4 and len(m.edge_action) == 4 * 3
@@ -171,7 +173,9 @@ def test_hand_built_triangle_tallies() -> None:
 
 
 def test_hand_built_grasp_tallies() -> None:
-    m = build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="grasp"))
+    m = build_observation_model(
+        hand_built(), SPEC, ObservationConfig(action_frame="relative", granularity="grasp")
+    )
     m.validate()
     a_plus = action_of(m, P0, P1)
     c1, c3, c4 = m.cells_of(tri(T1, T3, T4)).tolist()
@@ -227,7 +231,9 @@ def random_objects(
 def test_tallies_match_brute_force(granularity: str) -> None:
     rng = np.random.default_rng(11)
     objs = random_objects(rng)
-    m = build_observation_model(objs, SPEC, ObservationConfig(granularity=granularity))
+    m = build_observation_model(
+        objs, SPEC, ObservationConfig(action_frame="relative", granularity=granularity)
+    )
     m.validate()
     # Outcome ids by what they are, to rebuild the tallies with plain loops and dicts.
     out_of: dict[tuple, int] = {}
@@ -282,7 +288,9 @@ def test_tallies_match_brute_force(granularity: str) -> None:
 def test_sampling_matches_exact_mixture(granularity: str) -> None:
     rng = np.random.default_rng(5)
     objs = random_objects(rng)
-    m = build_observation_model(objs, SPEC, ObservationConfig(granularity=granularity))
+    m = build_observation_model(
+        objs, SPEC, ObservationConfig(action_frame="relative", granularity=granularity)
+    )
     p_y = np.array([0.2, 0.5, 0.3])
     # Pick the (cell, action) with the most mixed classes and outcomes, plus a fallback query.
     codes = m.tally_key
@@ -309,7 +317,9 @@ def test_pose_dedupe_and_lookup() -> None:
     flipped = np.array([0.02, 0.0, 0.0, *(-q)])  # same cell, same rotation with the other sign
     far = np.array([0.3, 0.0, 0.0, *q])
     objs = [("a", np.stack([near, far]), [tri(T1), tri(T3)]), ("b", flipped[None], [tri(T4)])]
-    m = build_observation_model(objs, SPEC, ObservationConfig())
+    m = build_observation_model(
+        objs, SPEC, ObservationConfig(granularity="triangle", action_frame="relative")
+    )
     assert m.n_poses == 2
     np.testing.assert_allclose(m.pose_xyz[0], near[:3])  # the first pose met represents it
     assert m.pose_index_of(flipped) == 0
@@ -319,7 +329,9 @@ def test_pose_dedupe_and_lookup() -> None:
 
 
 def test_storage_round_trip_and_validation() -> None:
-    m = build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="grasp"))
+    m = build_observation_model(
+        hand_built(), SPEC, ObservationConfig(action_frame="relative", granularity="grasp")
+    )
     again = ObservationModel.from_parts(m.scalars(), m.arrays())
     assert again.scalars() == m.scalars()
     for k, v in m.arrays().items():
@@ -338,12 +350,24 @@ def test_storage_round_trip_and_validation() -> None:
 
 def test_bad_inputs() -> None:
     with pytest.raises(ConfigError, match="granularity"):
-        build_observation_model(hand_built(), SPEC, ObservationConfig(granularity="pixel"))
+        build_observation_model(
+            hand_built(), SPEC, ObservationConfig(action_frame="relative", granularity="pixel")
+        )
     with pytest.raises(ConfigError, match="triangle_cell"):
-        build_observation_model(hand_built(), SPEC, ObservationConfig(triangle_cell=0.0))
+        build_observation_model(
+            hand_built(),
+            SPEC,
+            ObservationConfig(granularity="triangle", action_frame="relative", triangle_cell=0.0),
+        )
     with pytest.raises(DataError, match="2 poses but 1"):
-        build_observation_model([("a", np.stack([P0, P1]), [tri(T1)])], SPEC, ObservationConfig())
-    m = build_observation_model(hand_built(), SPEC, ObservationConfig())
+        build_observation_model(
+            [("a", np.stack([P0, P1]), [tri(T1)])],
+            SPEC,
+            ObservationConfig(granularity="triangle", action_frame="relative"),
+        )
+    m = build_observation_model(
+        hand_built(), SPEC, ObservationConfig(granularity="triangle", action_frame="relative")
+    )
     with pytest.raises(ValueError, match="p_y"):
         outcome_probabilities(m, 0, action_of(m, P0, P1), np.array([1.0]))
 
@@ -373,7 +397,7 @@ def marg_row(model: ObservationModel, y: int, action: int) -> dict[int, float] |
 
 def test_absolute_actions_give_every_class_near_the_target_a_row() -> None:
     m = build_observation_model(
-        absolute_objects(), SPEC, ObservationConfig(action_frame="absolute")
+        absolute_objects(), SPEC, ObservationConfig(granularity="triangle", action_frame="absolute")
     )
     assert m.action_frame == "absolute"
     assert m.n_poses == 5 and m.n_actions == 5  # one action per pooled pose: its own cell
@@ -404,7 +428,9 @@ def test_absolute_actions_give_every_class_near_the_target_a_row() -> None:
     assert row(m, 0, act[i1], c4) == pytest.approx({o3: 1.0})  # a's i at P2 -> j at P1
     # Without the nearness tolerance only exact cells count.
     exact = build_observation_model(
-        absolute_objects(), SPEC, ObservationConfig(action_frame="absolute", absolute_near_m=0.0)
+        absolute_objects(),
+        SPEC,
+        ObservationConfig(granularity="triangle", action_frame="absolute", absolute_near_m=0.0),
     )
     assert marg_row(exact, 1, act[i1]) is None and marg_row(exact, 0, act[ib1]) is None
     assert marg_row(exact, 0, act[i1]) == pytest.approx({o3: 1.0})
@@ -419,8 +445,12 @@ def test_edge_cost_is_the_cost_of_the_move() -> None:
         ),
         objs[1][2],
     )
-    rel = build_observation_model(objs, SPEC, ObservationConfig())
-    ab = build_observation_model(objs, SPEC, ObservationConfig(action_frame="absolute"))
+    rel = build_observation_model(
+        objs, SPEC, ObservationConfig(granularity="triangle", action_frame="relative")
+    )
+    ab = build_observation_model(
+        objs, SPEC, ObservationConfig(granularity="triangle", action_frame="absolute")
+    )
     np.testing.assert_array_equal(ab.pose_xyz, rel.pose_xyz)
     # Relative actions: the paper's c_m(a) of the edge's action.
     np.testing.assert_array_equal(rel.edge_cost, rel.action_cost[rel.edge_action])
@@ -443,4 +473,6 @@ def test_edge_cost_is_the_cost_of_the_move() -> None:
     with pytest.raises(DataError, match="edge_cost"):
         ObservationModel.from_parts(ab.scalars(), dict(ab.arrays(), edge_cost=ab.edge_cost[:-1]))
     with pytest.raises(ConfigError, match="action_frame"):
-        build_observation_model(objs, SPEC, ObservationConfig(action_frame="polar"))
+        build_observation_model(
+            objs, SPEC, ObservationConfig(granularity="triangle", action_frame="polar")
+        )
