@@ -24,7 +24,6 @@ import argparse
 import json
 import sys
 from dataclasses import dataclass
-from math import comb
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +34,14 @@ from rich.table import Table
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.service.evaluation import Job, make_jobs, parse_seeds, run_all
+from activetouch.service.evaluation import (
+    Job,
+    bootstrap_ci,
+    make_jobs,
+    parse_seeds,
+    run_all,
+    sign_test_p,
+)
 from activetouch.service.recognize import load_trained, model_path
 
 
@@ -51,28 +57,6 @@ def parse_arm(text: str) -> Arm:
     policy, _, rest = text.partition(":")
     overrides = tuple(s.strip() for s in rest.split(",") if s.strip())
     return Arm(text, policy.strip(), overrides)
-
-
-def sign_test_p(wins: int, losses: int) -> float:
-    """Two-sided exact sign test (ties dropped)."""
-    n = wins + losses
-    if n == 0:
-        return 1.0
-    k = min(wins, losses)
-    p = 2.0 * sum(comb(n, i) for i in range(k + 1)) / 2.0**n
-    return min(1.0, p)
-
-
-def bootstrap_ci(
-    diffs: np.ndarray, rng: np.random.Generator, n_boot: int = 10_000
-) -> tuple[float, float]:
-    """95 % percentile-bootstrap interval of the mean of `diffs`."""
-    if diffs.size == 0:
-        return float("nan"), float("nan")
-    idx = rng.integers(0, diffs.size, size=(n_boot, diffs.size))
-    means = diffs[idx].mean(axis=1)
-    lo, hi = np.percentile(means, [2.5, 97.5])
-    return float(lo), float(hi)
 
 
 def moves_table(

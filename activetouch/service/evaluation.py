@@ -6,6 +6,7 @@ Moves are counted in grasps, the first random grasp included; `None` means never
 from __future__ import annotations
 
 import concurrent.futures as cf
+import math
 import multiprocessing as mp
 import os
 from collections.abc import Callable
@@ -156,6 +157,26 @@ def _median(values: list[int | None], budget: int) -> float | None:
     return None if m > budget else m
 
 
+def sign_test_p(wins: int, losses: int) -> float:
+    """Two-sided exact sign test (ties dropped)."""
+    n = wins + losses
+    if n == 0:
+        return 1.0
+    k = min(wins, losses)
+    return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n)
+
+
+def bootstrap_ci(
+    diffs: np.ndarray, rng: np.random.Generator, n_boot: int = 10_000
+) -> tuple[float, float]:
+    """95 % percentile-bootstrap interval of the mean of `diffs`."""
+    if diffs.size == 0:
+        return float("nan"), float("nan")
+    idx = rng.integers(0, diffs.size, size=(n_boot, diffs.size))
+    lo, hi = np.percentile(diffs[idx].mean(axis=1), [2.5, 97.5])
+    return float(lo), float(hi)
+
+
 def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
     objects = list(dict.fromkeys(r["object"] for r in runs))
     policies = list(dict.fromkeys(r["policy"] for r in runs))
@@ -204,11 +225,17 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
                 a = r["moves_to_first_correct"] or max_moves + 1
                 b = o["moves_to_first_correct"] or max_moves + 1
                 diffs.append(b - a)
+            d = np.asarray(diffs, dtype=float)
+            wins, losses = int((d > 0).sum()), int((d < 0).sum())
+            # Fixed bootstrap seed: the same runs always give the same interval.
+            lo, hi = bootstrap_ci(d, np.random.default_rng(0))
             paired[f"tree_vs_{other}"] = {
-                "mean_moves_saved": float(np.mean(diffs)) if diffs else None,
-                "tree_fewer": int(sum(d > 0 for d in diffs)),
-                "ties": int(sum(d == 0 for d in diffs)),
-                "tree_more": int(sum(d < 0 for d in diffs)),
+                "mean_moves_saved": float(d.mean()) if d.size else None,
+                "ci95": [lo, hi] if d.size else None,
+                "tree_fewer": wins,
+                "ties": int((d == 0).sum()),
+                "tree_more": losses,
+                "sign_p": sign_test_p(wins, losses),
             }
     return {
         "objects": objects,

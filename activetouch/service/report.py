@@ -40,6 +40,15 @@ def _fmt(v: Any) -> str:
     return str(v)
 
 
+def saved_text(paired: dict[str, Any]) -> str:
+    """Mean moves saved with its interval, e.g. "+0.60 [+0.31, +0.92]"."""
+    m = paired["mean_moves_saved"]
+    if m is None:
+        return "n/a"
+    ci = paired.get("ci95")
+    return f"{m:+.2f}" + (f" [{ci[0]:+.2f}, {ci[1]:+.2f}]" if ci else "")
+
+
 def distance_figure(
     runs: list[dict[str, Any]], objects: list[str], policies: list[str], max_moves: int, out: Path
 ) -> None:
@@ -252,14 +261,15 @@ def write_report(
                 "",
                 "## Tree against the baselines, paired by object and seed",
                 "",
-                "| comparison | mean moves saved by tree | tree fewer | ties | tree more |",
-                "|---|---|---|---|---|",
+                "| comparison | mean moves saved by tree (95 % CI) | tree fewer | ties | "
+                "tree more | sign test p |",
+                "|---|---|---|---|---|---|",
             ]
         )
         for k, v in summary["paired_by_seed"].items():
             lines.append(
-                f"| {k} | {_fmt(v['mean_moves_saved'])} | {v['tree_fewer']} | "
-                f"{v['ties']} | {v['tree_more']} |"
+                f"| {k} | {saved_text(v)} | {v['tree_fewer']} | {v['ties']} | "
+                f"{v['tree_more']} | {v.get('sign_p', float('nan')):.3f} |"
             )
     lines.extend(
         [

@@ -2,15 +2,18 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from activetouch import paths
 from activetouch.errors import ConfigError
 from activetouch.service.cli import main
 from activetouch.service.evaluation import (
+    bootstrap_ci,
     first_correct,
     first_stable_correct,
     parse_seeds,
+    sign_test_p,
     summarise,
 )
 
@@ -58,7 +61,20 @@ def test_summary_pairs_runs_by_seed():
     # never counts as budget + 1 = 11: (4 - 2) + (3 - 11) = -6 over 2 pairs.
     assert s["paired_by_seed"]["tree_vs_random"]["mean_moves_saved"] == -3.0
     assert s["paired_by_seed"]["tree_vs_random"]["tree_fewer"] == 1
+    lo, hi = s["paired_by_seed"]["tree_vs_random"]["ci95"]
+    assert lo == -8.0 and hi == 2.0  # resampling two pairs: both -8, both +2, or one each
+    assert s["paired_by_seed"]["tree_vs_random"]["sign_p"] == 1.0
     assert s["per_policy"]["tree"]["objects_final_correct_majority"] == 0
+
+
+def test_sign_test_and_bootstrap():
+    assert sign_test_p(10, 0) == pytest.approx(2 / 2**10)
+    assert sign_test_p(5, 5) == 1.0 and sign_test_p(0, 0) == 1.0
+    lo, hi = bootstrap_ci(np.full(30, 0.5), np.random.default_rng(0))
+    assert lo == hi == 0.5
+    d = np.random.default_rng(1).normal(1.0, 1.0, 400)
+    lo, hi = bootstrap_ci(d, np.random.default_rng(0))
+    assert lo < d.mean() < hi and hi - lo == pytest.approx(2 * 1.96 / 20, rel=0.2)
 
 
 def test_eval_command_writes_results_and_report(trained_home, tmp_path, capsys):
