@@ -31,6 +31,9 @@ READING = """## Reading these figures
   edges keyed by their target pose, and the recognition term of Eq. 1 averaged over the
   path instead of taken at its end, with no movement weight. The paper's own settings
   (last table) do not separate the policies in this twin.
+- The lead over greedy is small (greedy shares the model, the classifier and, at T = 1, the
+  objective; the look-ahead adds about a tenth of a grasp): `docs/planner.md` confirms it on
+  a larger held-out seed set.
 - Most objects are right after one or two grasps whatever the policy, so ties dominate the
   paired counts; the differences come from the objects that share features (the cup and
   the mug share a handle).
