@@ -21,6 +21,7 @@ import json
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,7 @@ from activetouch.recognition.classifiers import (
     classifier_from_arrays,
     make_classifier,
 )
-from activetouch.recognition.dataset import Dataset, load_npz_bytes, npz_bytes
+from activetouch.recognition.dataset import Dataset, ObjectGrasps, load_npz_bytes, npz_bytes
 from activetouch.recognition.histogram import HistogramSpec
 from activetouch.recognition.training import grasp_triangles, partial_histograms
 from activetouch.recognition.triangles import triangle_params
@@ -163,9 +164,15 @@ def _utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
 
-def train_model(dataset: Dataset, cfg: Config, objects: list[str] | None = None) -> TrainedModel:
+def train_model(
+    dataset: Dataset,
+    cfg: Config,
+    objects: list[str] | None = None,
+    pose_ids: Mapping[str, np.ndarray] | None = None,
+) -> TrainedModel:
     """Fit histogram ranges, classifier and observation model on `objects` of `dataset` (all by
-    default, in name order)."""
+    default, in name order). `pose_ids`: per object, the grid pose ids to learn from (others
+    stored in the dataset, e.g. from a grid that had more objects, are left out)."""
     names = list(objects) if objects is not None else dataset.object_names()
     known = set(dataset.object_names())
     unknown = [n for n in names if n not in known]
@@ -182,6 +189,16 @@ def train_model(dataset: Dataset, cfg: Config, objects: list[str] | None = None)
     per_object: list[tuple[str, np.ndarray, list[np.ndarray]]] = []
     for name in names:
         og = dataset.read(name)
+        if pose_ids is not None and name in pose_ids:
+            keep = np.isin(og.pose_ids, pose_ids[name])
+            og = ObjectGrasps(
+                og.name,
+                og.pose_ids[keep],
+                og.poses[keep],
+                og.preshapes[keep],
+                [g for g, k in zip(og.grasps, keep, strict=True) if k],
+                og.attrs,
+            )
         tris = grasp_triangles(
             [g.xyz for g in og.grasps],
             rc.parameterisation,

@@ -82,7 +82,7 @@ def policy_table(doc: dict) -> list[str]:
     for k, v in s["paired_by_seed"].items():
         lines.append(
             f"| {k} | {saved_text(v)} | {v['tree_fewer']} | {v['ties']} | "
-            f"{v['tree_more']} | {v['sign_p']:.3f} |"
+            f"{v['tree_more']} | {v.get('sign_p', float('nan')):.3f} |"
         )
     return lines
 

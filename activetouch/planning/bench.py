@@ -102,11 +102,13 @@ def measure_tree_ms(
     return 1e3 * statistics.median(times)
 
 
-def pure_python_rate(n_poses: int, n_classes: int, seed: int, horizon: int, sims: int) -> float:
+def pure_python_rate(
+    n_poses: int, n_classes: int, seed: int, horizon: int, sims: int, anytime: bool
+) -> float:
     """Simulations per second of this search with numba disabled (run in a subprocess)."""
     code = (
         "import sys; from activetouch.planning.bench import _pure_child; "
-        f"print(_pure_child({n_poses}, {n_classes}, {seed}, {horizon}, {sims}))"
+        f"print(_pure_child({n_poses}, {n_classes}, {seed}, {horizon}, {sims}, {anytime}))"
     )
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     out = subprocess.run(
@@ -115,9 +117,11 @@ def pure_python_rate(n_poses: int, n_classes: int, seed: int, horizon: int, sims
     return float(out.stdout.strip().splitlines()[-1])
 
 
-def _pure_child(n_poses: int, n_classes: int, seed: int, horizon: int, sims: int) -> float:
+def _pure_child(
+    n_poses: int, n_classes: int, seed: int, horizon: int, sims: int, anytime: bool
+) -> float:
     pr = make_problem(n_poses, n_classes, seed)
-    ts = TreeSearch(pr.model, pr.kernel)
+    ts = TreeSearch(pr.model, pr.kernel, anytime=anytime)
     visited, counts, cells = _root(pr, 0)
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()
@@ -136,7 +140,8 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
         f"{len(m.tally_key)} tally rows, {len(m.marg_key)} marginal rows "
         f"({time.perf_counter() - t0:.1f} s to build)"
     )
-    ts = TreeSearch(m, pr.kernel)
+    anytime = args.objective == "anytime"
+    ts = TreeSearch(m, pr.kernel, anytime=anytime)
     rng = np.random.default_rng(args.seed)
     visited, counts, cells = _root(pr, 0)
     t0 = time.perf_counter()
@@ -176,16 +181,17 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
             "tally_rows": len(m.tally_key),
             "marginal_rows": len(m.marg_key),
         },
+        "objective": args.objective,
         "notes": "numba compile time excluded (warm-up); one core; synthetic model seed "
         f"{args.seed}",
     }
     if args.compare:
-        full = TreeSearch(m, pr.kernel, incremental=False)
+        full = TreeSearch(m, pr.kernel, incremental=False, anytime=anytime)
         full.search(0, visited, counts, cells, horizon=5, simulations=100, rng=rng)
         rate_full, _ = measure_rate(full, pr, 5, args.sims, args.repeats, rng)
         rate_inc = next(r["sims_per_s"] for r in results if r["horizon"] == 5)
         py_sims = 200
-        rate_py = pure_python_rate(args.poses, args.classes, args.seed, 5, py_sims)
+        rate_py = pure_python_rate(args.poses, args.classes, args.seed, 5, py_sims, anytime)
         out["compare_T5"] = {
             "numba_incremental_sims_per_s": rate_inc,
             "numba_full_kernel_proba_sims_per_s": round(rate_full, 1),
@@ -241,6 +247,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--poses", type=int, default=1064, help="pooled poses (actions per node + 1)")
     p.add_argument("--classes", type=int, default=7)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--objective",
+        choices=("anytime", "final"),
+        default="anytime",
+        help="recognition term: anytime (the default planner) or final (the paper's Eq. 1)",
+    )
     p.add_argument(
         "--compare",
         action="store_true",

@@ -89,7 +89,9 @@ def training_grid(extents: np.ndarray, cfg: GridConfig) -> GridPoses:
 def pose_content_id(pose: np.ndarray) -> int:
     """A stable 56-bit id of a pose (rounded to 0.1 mm and 1e-5 per quaternion component), so
     a shared grid's ids do not depend on which objects contributed the pose."""
-    key = np.round(np.asarray(pose, dtype=np.float64) * np.array([1e4] * 3 + [1e5] * 4))
+    pose = np.asarray(pose, dtype=np.float64)
+    q = pose[3:] if pose[6] >= 0 else -pose[3:]  # q and -q are one rotation: one id
+    key = np.round(np.concatenate([pose[:3] * 1e4, q * 1e5]))
     digest = hashlib.blake2b(key.astype(np.int64).tobytes(), digest_size=7).digest()
     return int.from_bytes(digest, "little")
 
@@ -115,4 +117,6 @@ def object_grids(extents: Mapping[str, np.ndarray], cfg: GridConfig) -> dict[str
     if cfg.layout == "shared":
         grid = shared_grid(extents, cfg)
         return {name: grid for name in extents}
+    if cfg.layout != "per_object":
+        raise ValueError(f"grid.layout must be shared or per_object, got {cfg.layout!r}")
     return {name: training_grid(ext, cfg) for name, ext in extents.items()}

@@ -835,7 +835,12 @@ class TreeSearch:
     `incremental`: keep linear classifier scores per added triangle (see `_scores_add`)."""
 
     def __init__(
-        self, model: ObservationModel, kernel: ClassifierKernel, *, incremental: bool = True
+        self,
+        model: ObservationModel,
+        kernel: ClassifierKernel,
+        *,
+        incremental: bool = True,
+        anytime: bool = False,
     ) -> None:
         if kernel.n_classes != model.n_classes:
             raise PlanningError(
@@ -849,6 +854,7 @@ class TreeSearch:
             )
         self.model = model
         self.kernel = kernel
+        self.anytime = anytime  # the objective a search uses unless it is told otherwise
         self._m = model_tuple(model)
         self._k = kernel_tuple(kernel, incremental)
         deg = np.diff(model.edge_ptr)
@@ -874,7 +880,7 @@ class TreeSearch:
         lam: float = 0.5,
         keep_tree: bool = False,
         per_class_backoff: bool = False,
-        anytime: bool = False,
+        anytime: bool | None = None,
     ) -> SearchResult:
         """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
 
@@ -931,7 +937,7 @@ class TreeSearch:
             np.float64(exploration_c),
             np.float64(lam),
             bool(per_class_backoff),
-            bool(anytime),
+            bool(self.anytime if anytime is None else anytime),
             np.int64(seed),
             nodes,
             recs,
@@ -972,9 +978,11 @@ def search(
     rng: np.random.Generator,
     exploration_c: float = 1.0,
     lam: float = 0.5,
+    per_class_backoff: bool = False,
+    anytime: bool = False,
 ) -> SearchResult:
-    """One-off tree search (see `TreeSearch.search`)."""
-    return TreeSearch(model, kernel).search(
+    """One-off tree search (see `TreeSearch.search`); the paper's objective by default."""
+    return TreeSearch(model, kernel, anytime=anytime).search(
         pose,
         visited,
         counts,
@@ -984,4 +992,5 @@ def search(
         rng=rng,
         exploration_c=exploration_c,
         lam=lam,
+        per_class_backoff=per_class_backoff,
     )

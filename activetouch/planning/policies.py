@@ -117,7 +117,7 @@ class TreePolicy(Policy):
             raise ConfigError(f"planner.lam must lie in [0, 1], got {lam}")
         if exploration_c < 0.0:
             raise ConfigError(f"planner.exploration_c must be >= 0, got {exploration_c}")
-        self.search = TreeSearch(model, kernel)
+        self.search = TreeSearch(model, kernel)  # the objective is passed per search
         self.horizon = int(horizon)
         self.simulations = int(simulations)
         self.exploration_c = float(exploration_c)

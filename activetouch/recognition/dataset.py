@@ -66,7 +66,7 @@ _ARRAYS: dict[str, tuple[type, tuple[str | int, ...]]] = {
 class GraspRecord:
     """One training grasp: where the hand was (hand frame in the object frame) and what it felt."""
 
-    pose_id: int  # index of the pose in the collection grid; unique per object
+    pose_id: int  # id of the pose in the collection grid (GridPoses.pose_ids); unique per object
     pose: Pose
     preshape: float
     grasp: Grasp

@@ -6,7 +6,6 @@ Moves are counted in grasps, the first random grasp included; `None` means never
 from __future__ import annotations
 
 import concurrent.futures as cf
-import math
 import multiprocessing as mp
 import os
 from collections.abc import Callable
@@ -15,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.stats import binomtest
 
 from activetouch.config import Config
 from activetouch.errors import ConfigError
@@ -162,18 +162,23 @@ def sign_test_p(wins: int, losses: int) -> float:
     n = wins + losses
     if n == 0:
         return 1.0
-    k = min(wins, losses)
-    return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n)
+    return float(binomtest(min(wins, losses), n, 0.5).pvalue)
 
 
 def bootstrap_ci(
-    diffs: np.ndarray, rng: np.random.Generator, n_boot: int = 10_000
+    diffs: np.ndarray, rng: np.random.Generator, n_boot: int = 10_000, chunk: int = 500
 ) -> tuple[float, float]:
-    """95 % percentile-bootstrap interval of the mean of `diffs`."""
+    """95 % percentile-bootstrap interval of the mean of `diffs` (resampled in chunks, so
+    memory stays small for large evaluations)."""
     if diffs.size == 0:
         return float("nan"), float("nan")
-    idx = rng.integers(0, diffs.size, size=(n_boot, diffs.size))
-    lo, hi = np.percentile(diffs[idx].mean(axis=1), [2.5, 97.5])
+    means = np.concatenate(
+        [
+            diffs[rng.integers(0, diffs.size, size=(min(chunk, n_boot - i), diffs.size))].mean(1)
+            for i in range(0, n_boot, chunk)
+        ]
+    )
+    lo, hi = np.percentile(means, [2.5, 97.5])
     return float(lo), float(hi)
 
 

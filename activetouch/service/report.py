@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from activetouch.service.evaluation import public_runs
+from activetouch.service.session import display_label
 
 POLICY_STYLE = {
     "tree": ("tab:blue", "-"),
@@ -134,7 +135,7 @@ def histogram_figure(
                     ax,
                     np.array(r["_counts"]),
                     bins,
-                    f"{pol} (seed {r['seed']}): {r['final_label']}",
+                    f"{pol} (seed {r['seed']}): {display_label(r['final_label'])}",
                 )
     fig.suptitle("Triangle histograms (l0, l1, a0 bins): training vs recognised", fontsize=10)
     fig.tight_layout()

@@ -151,7 +151,7 @@ class RecognitionSession:
                         pose_id=pose_id,
                         pose=self._poses[pose_id].copy(),
                         n_contacts=grasp.n_contacts,
-                        top=top_k(p, names),
+                        top=top_k(p, names) if counts.any() else [],
                         skipped=res.skipped,
                         elapsed_s=time.perf_counter() - t0,
                     )
@@ -213,6 +213,7 @@ class RecognitionSession:
         res.counts = counts
         if res.labels:
             p = np.asarray(res.probabilities[-1])
-            res.label, res.probability = res.labels[-1], float(p.max())
+            res.label = res.labels[-1]
+            res.probability = float(p.max()) if res.label != NO_LABEL else 0.0
         res.elapsed_s = time.perf_counter() - t0
         return res

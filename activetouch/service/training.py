@@ -10,6 +10,8 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
+
 from activetouch.config import Config
 from activetouch.model import TrainedModel, train_model
 from activetouch.planning.grid import GridPoses, object_grids
@@ -22,9 +24,12 @@ Progress = Callable[[str, int, int], None]  # object, poses done, poses in its g
 
 def dataset_meta(cfg: Config) -> dict:
     """Settings a dataset is bound to: resuming with other settings would mix two datasets."""
+    grid = dataclasses.asdict(cfg.grid)
+    if grid["layout"] == "per_object":
+        del grid["layout"]  # datasets made before the setting existed were per-object
     return {
         "source": "twin",
-        "grid": dataclasses.asdict(cfg.grid),
+        "grid": grid,
         "support_margin_m": cfg.recognition.support_margin_m,
         "sim": dataclasses.asdict(cfg.sim),
     }
@@ -132,7 +137,22 @@ def _drain(queue: object, progress: Progress | None) -> None:
             progress(*item)
 
 
+def grid_pose_ids(ds: Dataset, names: list[str], cfg: Config) -> dict[str, np.ndarray] | None:
+    """Per object, the ids of the grid `names` are collected at now, from the extents the
+    collection stored; None when some object has no stored extents (not collected here)."""
+    extents = {}
+    for n in names:
+        ext = ds.attrs(n).get("extents") if n in ds.object_names() else None
+        if ext is None:
+            return None
+        extents[n] = np.asarray(ext, dtype=np.float64)
+    return {n: g.pose_ids for n, g in object_grids(extents, cfg.grid).items()}
+
+
 def fit_and_save(dataset_path: Path, names: list[str], cfg: Config, out: Path) -> TrainedModel:
-    model = train_model(Dataset.open(dataset_path), cfg, objects=names)
+    """Fit on the grasps of `names` at the poses of their current grid (with the shared
+    layout, grasps stored for a grid that had other objects are left out) and save."""
+    ds = Dataset.open(dataset_path)
+    model = train_model(ds, cfg, objects=names, pose_ids=grid_pose_ids(ds, names, cfg))
     model.save(out)
     return model

@@ -70,6 +70,7 @@ def test_summary_pairs_runs_by_seed():
 def test_sign_test_and_bootstrap():
     assert sign_test_p(10, 0) == pytest.approx(2 / 2**10)
     assert sign_test_p(5, 5) == 1.0 and sign_test_p(0, 0) == 1.0
+    assert 0.0 < sign_test_p(600, 500) < 0.01  # large evaluations do not overflow
     lo, hi = bootstrap_ci(np.full(30, 0.5), np.random.default_rng(0))
     assert lo == hi == 0.5
     d = np.random.default_rng(1).normal(1.0, 1.0, 400)

@@ -6,11 +6,12 @@ import pytest
 
 from activetouch import paths
 from activetouch.errors import DataError
+from activetouch.model import train_model
 from activetouch.planning.grid import object_grids
 from activetouch.recognition.dataset import Dataset
 from activetouch.service.cli import main
 from activetouch.service.collect import SKIPPED_ATTR, collect_object
-from activetouch.service.training import collect, dataset_meta
+from activetouch.service.training import collect, dataset_meta, fit_and_save, grid_pose_ids
 from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
 
@@ -90,3 +91,29 @@ def test_train_command_user_mistakes_are_one_line_errors(tmp_path, capsys):
     assert "unicorn" in err and "Traceback" not in err
     assert main(["train", "--objects", " , ", "--data", str(tmp_path)]) == 2
     assert main(["train", "--data", str(tmp_path), "--set", "grid.step_deg=abc"]) == 2
+
+
+def test_fit_uses_only_the_grid_of_the_objects_trained(trained_home, tmp_path):
+    # The shared dataset of the service tests holds cup, sphere and bottle at the union of
+    # their three grids; a model of cup and sphere learns from the union of those two only.
+    cfg = small_config()
+    ds = Dataset.open(paths.default_dataset(trained_home))
+    ids = grid_pose_ids(ds, ["cup", "sphere"], cfg)
+    assert ids is not None
+    ext = {n: ds.attrs(n)["extents"] for n in ("cup", "sphere")}
+    want = object_grids(ext, cfg.grid)["cup"].pose_ids
+    assert set(ids["cup"].tolist()) == set(want.tolist())
+    stored = set(ds.read("cup").pose_ids.tolist())
+    assert set(want.tolist()) < stored | set(ds.attrs("cup")[SKIPPED_ATTR])
+    model = fit_and_save(paths.default_dataset(trained_home), ["cup", "sphere"], cfg, tmp_path)
+    assert model.class_names == ("cup", "sphere")
+    every = train_model(ds, cfg, objects=["cup", "sphere"])
+    assert model.observation.n_poses < every.observation.n_poses
+
+
+def test_per_object_meta_matches_datasets_made_before_layouts(tmp_path):
+    cfg = small_config()
+    cfg.grid.layout = "per_object"
+    assert "layout" not in dataset_meta(cfg)["grid"]
+    cfg.grid.layout = "shared"
+    assert dataset_meta(cfg)["grid"]["layout"] == "shared"

@@ -63,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def format_progress(ev: Progress) -> str:
-    top = "  ".join(f"{name} {p:.2f}" for name, p in ev.top)
+    top = "  ".join(f"{name} {p:.2f}" for name, p in ev.top) or "nothing felt yet"
     skipped = f"  ({ev.skipped} skipped)" if ev.skipped else ""
     return f"move {ev.move:>2}  pose {ev.pose_id:>4}  contacts {ev.n_contacts}  |  {top}{skipped}"
 
