@@ -59,8 +59,9 @@ class ObservationConfig:
 
 @dataclass
 class PlannerConfig:
-    # Defaults measured in the twin (docs/planner.md, "What makes the tree win"); the paper's
-    # own settings are lam 0.5, 20 simulations, the whole path executed, objective "final".
+    # Defaults measured in the twin (docs/planner.md, "The defaults: what beats random, and
+    # why"); the paper's own settings are lam 0.5, 20 simulations, the whole path executed,
+    # objective "final".
     policy: str = "tree"  # tree | greedy | random
     horizon: int = 5
     simulations: int = 200
