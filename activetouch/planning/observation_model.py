@@ -608,8 +608,8 @@ def build_observation_model(
         m_outs.append(outs)
         m_cums.append(cum)
 
-    tally_key, tally_ptr, tally_out, tally_cum = _concat_rows(t_keys, t_ptrs, t_outs, t_cums)
-    marg_key, marg_ptr, marg_out, marg_cum = _concat_rows(m_keys, m_ptrs, m_outs, m_cums)
+    tally_key, tally_ptr, tally_out, tally_cum = concat_csr_rows(t_keys, t_ptrs, t_outs, t_cums)
+    marg_key, marg_ptr, marg_out, marg_cum = concat_csr_rows(m_keys, m_ptrs, m_outs, m_cums)
     return ObservationModel(
         granularity=cfg.granularity,
         class_names=names,
@@ -693,9 +693,13 @@ def _drop_empty(
     return new_ptr, outs, cum, keys[keep]  # empty rows own no entries, so data stays as is
 
 
-def _concat_rows(
-    keys: list[np.ndarray], ptrs: list[np.ndarray], outs: list[np.ndarray], cums: list[np.ndarray]
+def concat_csr_rows(
+    keys: Sequence[np.ndarray],
+    ptrs: Sequence[np.ndarray],
+    outs: Sequence[np.ndarray],
+    cums: Sequence[np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One CSR row table (keys, ptr, outcomes, cumulative probabilities) from several."""
     if not keys:
         return _empty_i64(), np.zeros(1, dtype=np.int64), _empty_i64(), np.zeros(0)
     shifts = np.cumsum([0] + [p[-1] for p in ptrs[:-1]])

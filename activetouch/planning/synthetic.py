@@ -29,7 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from activetouch.planning.observation_model import GRANULARITIES, ObservationModel
+from activetouch.planning.observation_model import (
+    GRANULARITIES,
+    ObservationModel,
+    concat_csr_rows,
+)
 from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
 
 TRANSLATION_CELL_M = 0.06
@@ -131,18 +135,6 @@ def _rows(keys: np.ndarray, outs: np.ndarray, n_out: int) -> tuple[np.ndarray, .
     cum = (cum - before[row_of]) / totals[row_of]
     cum[ptr[1:] - 1] = 1.0  # exact row ends despite rounding
     return rk.astype(np.int64), ptr, uo.astype(np.int64), cum
-
-
-def _concat_rows(parts: list[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
-    keys = np.concatenate([p[0] for p in parts])
-    shifts = np.cumsum([0] + [p[1][-1] for p in parts[:-1]])
-    ptr = np.concatenate([[0]] + [p[1][1:] + sh for p, sh in zip(parts, shifts, strict=True)])
-    return (
-        keys,
-        ptr.astype(np.int64),
-        np.concatenate([p[2] for p in parts]),
-        np.concatenate([p[3] for p in parts]),
-    )
 
 
 def synthetic_problem(
@@ -286,8 +278,8 @@ def synthetic_problem(
                 t_outs.append(flat_out)
         tally_parts.append(_rows(np.concatenate(t_keys), np.concatenate(t_outs), n_out))
         marg_parts.append(_rows(np.concatenate(m_keys), np.concatenate(m_outs), n_out))
-    tally_key, tally_ptr, tally_out, tally_cum = _concat_rows(tally_parts)
-    marg_key, marg_ptr, marg_out, marg_cum = _concat_rows(marg_parts)
+    tally_key, tally_ptr, tally_out, tally_cum = concat_csr_rows(*zip(*tally_parts, strict=True))
+    marg_key, marg_ptr, marg_out, marg_cum = concat_csr_rows(*zip(*marg_parts, strict=True))
 
     model = ObservationModel(
         granularity=granularity,
