@@ -36,11 +36,10 @@ from activetouch import paths
 from activetouch.config import load_config
 from activetouch.service.evaluation import (
     Job,
-    bootstrap_ci,
     make_jobs,
+    paired_stats,
     parse_seeds,
     run_all,
-    sign_test_p,
 )
 from activetouch.service.recognize import load_trained, model_path
 
@@ -84,19 +83,14 @@ def paired_rows(
                 continue
             keys = sorted(k for k in table[arm.label] if objects is None or k[0] in objects)
             d = np.array([table[base][k] - table[arm.label][k] for k in keys], dtype=float)
-            lo, hi = bootstrap_ci(d, rng)
-            wins, losses = int((d > 0).sum()), int((d < 0).sum())
+            st = paired_stats(d, rng)
             rows.append(
                 {
                     "arm": arm.label,
                     "baseline": base,
                     "pairs": len(d),
-                    "mean_saved": float(d.mean()) if d.size else float("nan"),
-                    "ci95": (lo, hi),
-                    "wins": wins,
-                    "ties": int((d == 0).sum()),
-                    "losses": losses,
-                    "sign_p": sign_test_p(wins, losses),
+                    "mean_saved": st.pop("mean"),
+                    **st,
                 }
             )
     return rows

@@ -182,6 +182,20 @@ def bootstrap_ci(
     return float(lo), float(hi)
 
 
+def paired_stats(diffs: np.ndarray, rng: np.random.Generator) -> dict[str, Any]:
+    """Paired differences (positive: the first of the pair needed fewer moves): their mean,
+    95 % bootstrap interval, wins / ties / losses and sign-test p."""
+    wins, losses = int((diffs > 0).sum()), int((diffs < 0).sum())
+    return {
+        "mean": float(diffs.mean()) if diffs.size else float("nan"),
+        "ci95": bootstrap_ci(diffs, rng),
+        "wins": wins,
+        "ties": int((diffs == 0).sum()),
+        "losses": losses,
+        "sign_p": sign_test_p(wins, losses),
+    }
+
+
 def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
     objects = list(dict.fromkeys(r["object"] for r in runs))
     policies = list(dict.fromkeys(r["policy"] for r in runs))
@@ -218,6 +232,7 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
         }
     paired: dict[str, Any] = {}
     if "tree" in policies:
+        by_key = {(r["policy"], r["object"], r["seed"]): r for r in runs}
         for other in policies:
             if other == "tree":
                 continue
@@ -225,22 +240,20 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
             for r in runs:
                 if r["policy"] != "tree":
                     continue
-                key = (other, r["object"], r["seed"])
-                o = next(x for x in runs if (x["policy"], x["object"], x["seed"]) == key)
+                o = by_key[(other, r["object"], r["seed"])]
                 a = r["moves_to_first_correct"] or max_moves + 1
                 b = o["moves_to_first_correct"] or max_moves + 1
                 diffs.append(b - a)
             d = np.asarray(diffs, dtype=float)
-            wins, losses = int((d > 0).sum()), int((d < 0).sum())
             # Fixed bootstrap seed: the same runs always give the same interval.
-            lo, hi = bootstrap_ci(d, np.random.default_rng(0))
+            st = paired_stats(d, np.random.default_rng(0))
             paired[f"tree_vs_{other}"] = {
-                "mean_moves_saved": float(d.mean()) if d.size else None,
-                "ci95": [lo, hi] if d.size else None,
-                "tree_fewer": wins,
-                "ties": int((d == 0).sum()),
-                "tree_more": losses,
-                "sign_p": sign_test_p(wins, losses),
+                "mean_moves_saved": st["mean"] if d.size else None,
+                "ci95": list(st["ci95"]) if d.size else None,
+                "tree_fewer": st["wins"],
+                "ties": st["ties"],
+                "tree_more": st["losses"],
+                "sign_p": st["sign_p"],
             }
     return {
         "objects": objects,
