@@ -854,7 +854,7 @@ class TreeSearch:
             )
         self.model = model
         self.kernel = kernel
-        self.anytime = anytime  # the objective a search uses unless it is told otherwise
+        self.anytime = anytime  # objective: the paper's Eq. 1 on h_T, or averaged over the path
         self._m = model_tuple(model)
         self._k = kernel_tuple(kernel, incremental)
         deg = np.diff(model.edge_ptr)
@@ -880,7 +880,6 @@ class TreeSearch:
         lam: float = 0.5,
         keep_tree: bool = False,
         per_class_backoff: bool = False,
-        anytime: bool | None = None,
     ) -> SearchResult:
         """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
 
@@ -937,7 +936,7 @@ class TreeSearch:
             np.float64(exploration_c),
             np.float64(lam),
             bool(per_class_backoff),
-            bool(self.anytime if anytime is None else anytime),
+            bool(self.anytime),
             np.int64(seed),
             nodes,
             recs,

@@ -117,7 +117,6 @@ class TreePolicy(Policy):
             raise ConfigError(f"planner.lam must lie in [0, 1], got {lam}")
         if exploration_c < 0.0:
             raise ConfigError(f"planner.exploration_c must be >= 0, got {exploration_c}")
-        self.search = TreeSearch(model, kernel)  # the objective is passed per search
         self.horizon = int(horizon)
         self.simulations = int(simulations)
         self.exploration_c = float(exploration_c)
@@ -133,7 +132,7 @@ class TreePolicy(Policy):
             raise ConfigError(
                 f"planner.objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}"
             )
-        self.anytime = objective == "anytime"
+        self.search = TreeSearch(model, kernel, anytime=objective == "anytime")
 
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         res = self.search.search(
@@ -147,7 +146,6 @@ class TreePolicy(Policy):
             exploration_c=self.exploration_c,
             lam=self.lam,
             per_class_backoff=self.per_class_backoff,
-            anytime=self.anytime,
         )
         if res.exhausted:
             return _exhausted(self.name)

@@ -280,7 +280,8 @@ def test_anytime_objective_values_and_best_paths() -> None:
     """The anytime objective: the value of an extracted path is its own cost, it finds the
     exhaustive optimum of that cost, and with T = 1 it is Eq. 1."""
     model, kernel = lookahead_problem(cost=0.3)
-    ts = TreeSearch(model, kernel)
+    ts = TreeSearch(model, kernel, anytime=True)
+    paper = TreeSearch(model, kernel)
     for seed, horizon, lam in [(1, 1, 0.5), (2, 2, 0.2), (3, 3, 0.5)]:
         kw = dict(horizon=horizon, simulations=3000, lam=lam)
         res = ts.search(
@@ -289,7 +290,6 @@ def test_anytime_objective_values_and_best_paths() -> None:
             ROOT_COUNTS,
             ROOT_CELLS,
             rng=np.random.default_rng(seed),
-            anytime=True,
             **kw,
         )
         c = path_cost(
@@ -297,7 +297,7 @@ def test_anytime_objective_values_and_best_paths() -> None:
         )
         assert res.value == pytest.approx(1.0 - c, abs=1e-12)
         if horizon == 1:
-            final = ts.search(
+            final = paper.search(
                 0, NO_POSES, ROOT_COUNTS, ROOT_CELLS, rng=np.random.default_rng(seed), **kw
             )
             assert final.poses.tolist() == res.poses.tolist()
@@ -311,7 +311,6 @@ def test_anytime_objective_values_and_best_paths() -> None:
         horizon=2,
         simulations=20000,
         rng=np.random.default_rng(0),
-        anytime=True,
     )
     costs = {
         p: path_cost(model, kernel, 0, list(p), ROOT_COUNTS, C_ROOT, 2, anytime=True)
