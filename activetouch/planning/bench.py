@@ -34,6 +34,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from activetouch.config import CHOICES
 from activetouch.planning.mcts import TreeSearch
 from activetouch.planning.synthetic import SyntheticProblem, synthetic_problem
 
@@ -249,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--objective",
-        choices=("anytime", "final"),
+        choices=CHOICES["planner.objective"],
         default="anytime",
         help="recognition term: anytime (the default planner) or final (the paper's Eq. 1)",
     )

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from activetouch.config import PlannerConfig
+from activetouch.config import CHOICES, PlannerConfig
 from activetouch.errors import ConfigError, PlanningError
 from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
 from activetouch.planning.observation_model import ObservationModel
@@ -190,9 +190,10 @@ class RandomPolicy(Policy):
         )
 
 
-POLICY_NAMES: tuple[str, ...] = ("tree", "greedy", "random")
-EQ4_SAMPLING: tuple[str, ...] = ("renormalise", "per_class")
-OBJECTIVES: tuple[str, ...] = ("final", "anytime")
+# The allowed words live with the config; policies built without a config check them too.
+POLICY_NAMES: tuple[str, ...] = CHOICES["planner.policy"]
+EQ4_SAMPLING: tuple[str, ...] = CHOICES["planner.eq4_sampling"]
+OBJECTIVES: tuple[str, ...] = CHOICES["planner.objective"]
 
 
 def make_policy(
