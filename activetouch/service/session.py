@@ -133,12 +133,13 @@ class RecognitionSession:
             p = self.model.proba(counts)
             best = int(np.argmax(p))
             # No triangle yet: p is uniform and its argmax (class 0) says nothing.
-            res.labels.append(names[best] if counts.any() else NO_LABEL)
+            felt = bool(counts.any())
+            res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
             res.contacts.append(hand_to_object(pose, grasp.xyz))
             # Consecutive confident grasps agreeing on the same top class.
-            if p[best] < self.cfg.confidence or not counts.any():
+            if p[best] < self.cfg.confidence or not felt:
                 streak = 0
             elif streak > 0 and res.labels[-2] == names[best]:
                 streak += 1
@@ -151,7 +152,7 @@ class RecognitionSession:
                         pose_id=pose_id,
                         pose=self._poses[pose_id].copy(),
                         n_contacts=grasp.n_contacts,
-                        top=top_k(p, names) if counts.any() else [],
+                        top=top_k(p, names) if felt else [],
                         skipped=res.skipped,
                         elapsed_s=time.perf_counter() - t0,
                     )
