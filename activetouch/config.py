@@ -8,6 +8,7 @@ Defaults are the papers' values (Zhang et al. IROS 2016/2017) unless stated.
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import tomllib
 import types
@@ -144,8 +145,7 @@ class SimConfig:
     # housing itself dips under the table for objects < ~0.11 m tall) and the 25 deg ring at
     # roll 0, where the thumb points down at the table and raising it turns it further down.
     open_spool_rad: float = 0.0
-    # World and wrist.
-    table_size_m: list[float] = field(default_factory=lambda: [1.5, 1.5, 0.05])
+    # Wrist (the table comes from [workcell]).
     wrist_penetration_tol_m: float = 0.002  # deeper hand/object or hand/table overlap: unreachable
     execute_step_m: float = 0.01  # collision-check spacing along executed wrist trajectories
     execute_step_rad: float = 0.05
@@ -184,6 +184,40 @@ class ServiceConfig:
 
 
 @dataclass
+class WorkcellConfig:
+    """Where things are, in the robot base frame (x forward, z up), metres. The same on every
+    robot, real or simulated: the table plane that drops table contacts comes from here."""
+
+    table_center: list[float] = field(default_factory=lambda: [0.0, 0.0, -0.025])
+    table_size: list[float] = field(default_factory=lambda: [1.5, 1.5, 0.05])
+    # The object frame (origin at the object's bounding-box centre, z up) in the base frame.
+    # The twins stand each placed object on the table at this x, y (z then follows from the
+    # object's height); on a real robot all three come from here or from calibration.
+    object_xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    object_yaw_deg: float = 0.0
+
+    @property
+    def table_top_z(self) -> float:
+        return float(self.table_center[2]) + float(self.table_size[2]) / 2
+
+    def check(self) -> None:
+        for name, n in (("table_center", 3), ("table_size", 3), ("object_xyz", 3)):
+            v = getattr(self, name)
+            if len(v) != n or not all(math.isfinite(x) for x in v):
+                raise ConfigError(f"workcell.{name}: expected {n} finite numbers, got {v}")
+        if not all(x > 0 for x in self.table_size):
+            raise ConfigError(f"workcell.table_size must be positive, got {self.table_size}")
+        if not math.isfinite(self.object_yaw_deg):
+            raise ConfigError("workcell.object_yaw_deg must be finite")
+
+
+def _default_device(kind: str) -> Any:
+    from activetouch.devices import device_config
+
+    return device_config(kind, {})
+
+
+@dataclass
 class Config:
     recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
     observation: ObservationConfig = field(default_factory=ObservationConfig)
@@ -192,6 +226,13 @@ class Config:
     session: SessionConfig = field(default_factory=SessionConfig)
     sim: SimConfig = field(default_factory=SimConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
+    workcell: WorkcellConfig = field(default_factory=WorkcellConfig)
+    # Devices: `type` picks the device (activetouch.devices), the rest are that type's settings.
+    hand: Any = field(default_factory=lambda: _default_device("hand"))
+    arm: Any = field(default_factory=lambda: _default_device("arm"))
+
+
+DEVICE_SECTIONS = ("hand", "arm")
 
 
 def _coerce(value: Any, tp: Any, key: str) -> Any:
@@ -237,20 +278,39 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     return value
 
 
-def _apply(obj: Any, data: dict[str, Any], prefix: str) -> None:
+def apply_section(obj: Any, data: dict[str, Any], prefix: str, what: str = "") -> None:
+    """Set the fields of dataclass `obj` from `data`, coercing types; ConfigError naming the
+    key (`prefix` + name) of anything unknown or of the wrong type."""
     hints = typing.get_type_hints(type(obj))
     names = {f.name for f in dataclasses.fields(obj)}
     for k, v in data.items():
         key = f"{prefix}{k}"
         if k not in names:
-            raise ConfigError(f"unknown setting {key!r} (known: {', '.join(sorted(names))})")
+            of = f" of {what}" if what else ""
+            raise ConfigError(
+                f"unknown setting {key!r}{of} (known: {', '.join(sorted(names - {'type'}))})"
+            )
         cur = getattr(obj, k)
         if dataclasses.is_dataclass(cur):
             if not isinstance(v, dict):
                 raise ConfigError(f"{key}: expected a table of settings")
-            _apply(cur, v, key + ".")
+            apply_section(cur, v, key + ".")
         else:
             setattr(obj, k, _coerce(v, hints[k], key))
+
+
+def _apply(cfg: Config, data: dict[str, Any], prefix: str, devices: dict[str, dict]) -> None:
+    """Like `apply_section` on the whole config, but the device sections are gathered raw
+    into `devices` (their settings depend on their type, known only once all are read)."""
+    rest = {}
+    for k, v in data.items():
+        if k in DEVICE_SECTIONS:
+            if not isinstance(v, dict):
+                raise ConfigError(f"{prefix}{k}: expected a table of settings")
+            devices[k].update(v)
+        else:
+            rest[k] = v
+    apply_section(cfg, rest, prefix)
 
 
 def load_config(
@@ -258,6 +318,7 @@ def load_config(
 ) -> Config:
     """Defaults, then the TOML file at `path`, then `section.key=value` overrides."""
     cfg = Config()
+    devices: dict[str, dict] = {k: {} for k in DEVICE_SECTIONS}
     if path is not None:
         p = Path(path)
         try:
@@ -269,7 +330,7 @@ def load_config(
         except (OSError, UnicodeDecodeError) as e:
             raise ConfigError(f"{p}: cannot read the config file ({e})") from None
         try:
-            _apply(cfg, data, "")
+            _apply(cfg, data, "", devices)
         except ConfigError as e:
             raise ConfigError(f"{p}: {e}") from None
     for item in overrides or []:
@@ -284,9 +345,19 @@ def load_config(
         nested: dict[str, Any] = {parts[-1]: value}
         for part in reversed(parts[:-1]):
             nested = {part: nested}
-        _apply(cfg, nested, "")
+        _apply(cfg, nested, "", devices)
+    set_devices(cfg, devices)
     _check_choices(cfg)
+    cfg.workcell.check()
     return cfg
+
+
+def set_devices(cfg: Config, raw: dict[str, dict]) -> None:
+    """Make the typed `cfg.hand` / `cfg.arm` from raw sections (``{"type": ..., ...}``)."""
+    from activetouch.devices import device_config
+
+    for kind in DEVICE_SECTIONS:
+        setattr(cfg, kind, device_config(kind, raw.get(kind, {})))
 
 
 # Settings that take one of a few words; anything else is refused when the config is loaded.

@@ -35,3 +35,7 @@ class NodeUnavailableError(ActiveTouchError):
 
 class RemoteError(ActiveTouchError):
     """A remote node failed with an error that has no counterpart here (e.g. a driver bug)."""
+
+
+class StoppedError(ActiveTouchError):
+    """A device refused or cut short a command because it was stopped (stop / e-stop)."""

@@ -10,13 +10,18 @@ Conventions used everywhere in the package:
   ... 4 last proximal, 5..8 distal, 8 the fingertip) has id ``f * 9 + s``; the 11 palm sensors
   are ids 27..37. (The ReFlex wire order differs: drivers remap to this.)
 - Contact XYZ are sensor-frame origins in the hand (ReFlex base link) frame, in metres.
-- Wrist poses handed to an `Arm` are of the hand frame in the object frame (origin at the
-  object centre, z up), which is where training poses are stored.
+- An `Arm` is joint-level: it knows its joints, their limits and how to follow a timed joint
+  trajectory. Turning a wrist pose (hand frame in the object frame, where training poses are
+  stored) into joint motion is the motion layer's job (`activetouch.planning.motion`), so a
+  driver stays small.
+- `stop()` on either device may be called from any thread while a command runs; it takes
+  effect at once and stays in force (commands raise `StoppedError`) until `clear_stop()`.
 """
 
 from __future__ import annotations
 
 import abc
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -119,6 +124,68 @@ class JointTrajectory:
     meta: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class JointLimits:
+    """Per-joint limits, in the order of `Arm.joint_names`: rad (or m), rad/s, rad/s^2."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+    velocity: np.ndarray
+    acceleration: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("lower", "upper", "velocity", "acceleration"):
+            object.__setattr__(
+                self, name, np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)
+            )
+        n = len(self.lower)
+        if not (len(self.upper) == len(self.velocity) == len(self.acceleration) == n):
+            raise ValueError("joint limits differ in length")
+        if np.any(self.lower > self.upper) or np.any(self.velocity <= 0):
+            raise ValueError("joint limits: lower > upper or a non-positive velocity")
+
+    def violations(self, names: tuple[str, ...], q: np.ndarray, tol: float = 1e-9) -> list[str]:
+        """Human-readable list of the joints of `q` (n_points, n) outside the limits."""
+        q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+        out: list[str] = []
+        for j, name in enumerate(names):
+            lo, hi = float(q[:, j].min()), float(q[:, j].max())
+            if lo < self.lower[j] - tol or hi > self.upper[j] + tol:
+                out.append(
+                    f"{name} reaches [{lo:.4g}, {hi:.4g}] outside "
+                    f"[{self.lower[j]:.4g}, {self.upper[j]:.4g}]"
+                )
+        return out
+
+
+class StopLatch:
+    """The stop flag every device keeps: set from any thread, checked by running commands,
+    in force until cleared."""
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+
+    def set(self) -> None:
+        self._event.set()
+
+    def clear(self) -> None:
+        self._event.clear()
+
+    @property
+    def is_set(self) -> bool:
+        return self._event.is_set()
+
+    def check(self, what: str) -> None:
+        from activetouch.errors import StoppedError
+
+        if self._event.is_set():
+            raise StoppedError(f"{what}: the device is stopped (clear the stop first)")
+
+    def wait(self, timeout: float) -> bool:
+        """Sleep up to `timeout` s; True at once if the stop is (or becomes) set."""
+        return self._event.wait(timeout)
+
+
 class Hand(abc.ABC):
     """A tactile hand that can do guarded enclosure grasps."""
 
@@ -138,10 +205,21 @@ class Hand(abc.ABC):
 
     @abc.abstractmethod
     def guarded_close(self) -> Grasp:
-        """Close every finger in steps until it touches or reaches its limit; report contacts."""
+        """Close every finger in steps until it touches or reaches its limit; report contacts.
+
+        Raises `StoppedError` if `stop()` is called meanwhile (within one control step)."""
 
     @abc.abstractmethod
     def state(self) -> HandState: ...
+
+    @abc.abstractmethod
+    def stop(self) -> None:
+        """Halt the fingers now, from any thread, also during `guarded_close`; motion commands
+        are refused until `clear_stop()`."""
+
+    @abc.abstractmethod
+    def clear_stop(self) -> None:
+        """Allow motion commands again after `stop()`."""
 
     def __enter__(self) -> Hand:
         self.connect()
@@ -152,7 +230,15 @@ class Hand(abc.ABC):
 
 
 class Arm(abc.ABC):
-    """An arm carrying the hand."""
+    """A joint-level arm carrying the hand."""
+
+    @property
+    @abc.abstractmethod
+    def joint_names(self) -> tuple[str, ...]: ...
+
+    @property
+    @abc.abstractmethod
+    def limits(self) -> JointLimits: ...
 
     @abc.abstractmethod
     def connect(self) -> None: ...
@@ -165,17 +251,18 @@ class Arm(abc.ABC):
 
     @abc.abstractmethod
     def execute(self, trajectory: JointTrajectory) -> None:
-        """Run a timed joint trajectory to its end (blocking). Raises on failure."""
-
-    @abc.abstractmethod
-    def move_wrist(self, pose: Pose) -> None:
-        """Bring the hand frame to `pose` (object frame), planning the motion itself.
-
-        Raises `activetouch.errors.UnreachableError` when the pose cannot be reached."""
+        """Run a timed joint trajectory to its end (blocking). Raises on failure: a trajectory
+        outside the joint limits is refused before anything moves (`UnreachableError`); a
+        stop during it raises `StoppedError`."""
 
     @abc.abstractmethod
     def stop(self) -> None:
-        """Halt motion now and hold position."""
+        """Halt motion now and hold position; callable from another thread while `execute`
+        runs. Further motion is refused until `clear_stop()`."""
+
+    @abc.abstractmethod
+    def clear_stop(self) -> None:
+        """Allow motion again after `stop()`."""
 
     def __enter__(self) -> Arm:
         self.connect()

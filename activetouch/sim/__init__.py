@@ -1,11 +1,14 @@
 """PyBullet twin: ReFlex hand with tactile sites, table, object library, training collection.
-Implements the same Hand / Arm interfaces as the real drivers."""
+Implements the same Hand / Arm interfaces as the real drivers.
+
+Importing this package does not load PyBullet (a config naming the twin device types must not
+cost that); the modules that use it call `import_pybullet_quietly()` first."""
 
 import os
 import sys
 
 
-def _import_pybullet_quietly() -> None:
+def import_pybullet_quietly() -> None:
     """PyBullet's C code prints its build date to stderr on every import (once per worker
     process too), which buries the CLI's own messages; import it with fd 2 on /dev/null."""
     if "pybullet" in sys.modules:
@@ -21,5 +24,3 @@ def _import_pybullet_quietly() -> None:
         os.close(saved)
         os.close(devnull)
 
-
-_import_pybullet_quietly()

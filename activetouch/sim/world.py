@@ -24,10 +24,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pybullet as pb
 from scipy.spatial.transform import Rotation
 
-from activetouch.config import SimConfig
+from activetouch.config import SimConfig, WorkcellConfig
 from activetouch.errors import ActiveTouchError, UnreachableError
 from activetouch.interfaces import (
     N_FINGERS,
@@ -38,6 +37,7 @@ from activetouch.interfaces import (
     JointTrajectory,
     Pose,
 )
+from activetouch.sim.pybullet import pb
 from activetouch.sim.reflex_urdf import (
     DISTAL_JOINTS,
     DISTAL_LINKS,
@@ -118,19 +118,24 @@ class SimWorld:
         cfg: SimConfig | None = None,
         geometry: ReflexGeometry | None = None,
         urdf_cache: Path | None = None,
+        workcell: WorkcellConfig | None = None,
     ) -> None:
         self.cfg = cfg or SimConfig()
+        self.workcell = workcell or WorkcellConfig()
         self.geometry = geometry or geometry_from_config(self.cfg)
         self.client: int | None = pb.connect(pb.DIRECT)
         self._object: PlacedObject | None = None
         c = self.client
         try:
-            size = np.asarray(self.cfg.table_size_m, dtype=np.float64).reshape(3)
+            size = np.asarray(self.workcell.table_size, dtype=np.float64).reshape(3)
             table_shape = pb.createCollisionShape(
                 pb.GEOM_BOX, halfExtents=(size / 2).tolist(), physicsClientId=c
             )
             self.table = pb.createMultiBody(
-                0.0, table_shape, basePosition=[0.0, 0.0, -size[2] / 2], physicsClientId=c
+                0.0,
+                table_shape,
+                basePosition=[float(v) for v in self.workcell.table_center],
+                physicsClientId=c,
             )
             path = urdf_file(self.geometry, urdf_cache)
             self.hand = pb.loadURDF(

@@ -1,0 +1,59 @@
+"""The wrist-motion interface and the object placement it works in."""
+
+from __future__ import annotations
+
+import abc
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from activetouch.interfaces import Pose
+
+
+@dataclass(frozen=True)
+class Placement:
+    """The object frame in the robot base frame (origin at the object's bounding-box centre,
+    z up; turned about z only, as an object standing on a table is)."""
+
+    xyz: np.ndarray
+    yaw_rad: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "xyz", np.asarray(self.xyz, dtype=np.float64).reshape(3))
+
+    @property
+    def rotation(self) -> Rotation:
+        return Rotation.from_euler("z", self.yaw_rad)
+
+    def to_base(self, pose: Pose) -> Pose:
+        """A pose in the object frame, expressed in the base frame."""
+        r = self.rotation
+        return Pose(r.apply(pose.xyz) + self.xyz, (r * Rotation.from_quat(pose.quat)).as_quat())
+
+    def to_object(self, pose: Pose) -> Pose:
+        """A pose in the base frame, expressed in the object frame."""
+        inv = self.rotation.inv()
+        q = (inv * Rotation.from_quat(pose.quat)).as_quat()
+        return Pose(inv.apply(pose.xyz - self.xyz), q)
+
+    def support_z(self, table_top_z: float) -> float:
+        """The table plane's height in the object frame (z is shared: the object only yaws)."""
+        return float(table_top_z) - float(self.xyz[2])
+
+
+class WristMotion(abc.ABC):
+    """Brings the hand frame to a wrist pose given in the object frame."""
+
+    placement: Placement
+
+    @abc.abstractmethod
+    def move_to(self, pose: Pose) -> None:
+        """Move the hand frame to `pose` (object frame) and return once there.
+
+        Raises `UnreachableError` when no collision-free motion reaches it (the arm then stays
+        where it was or where it stopped, safely), `StoppedError` when the arm was stopped."""
+
+    def set_placement(self, placement: Placement) -> None:
+        """Where the object now is (a twin placed it, or calibration measured it)."""
+        self.placement = placement
