@@ -264,7 +264,10 @@ class Ros1Codec:
     # --- what the driver receives
     def parse_joint_state(self, raw: bytes) -> RosJointState:
         m = self._de(JOINT_STATE, raw)
-        stamp = float(m.header.stamp.sec) + 1e-9 * float(m.header.stamp.nanosec)
+        # ROS 1 time is (uint32 sec, uint32 nsec); rosbags' ROS 1 store reads sec as int32
+        # (the ROS 2 Time type), so stamps past 2038 would come out negative: undo that.
+        sec = int(m.header.stamp.sec) % (1 << 32)
+        stamp = float(sec) + 1e-9 * float(m.header.stamp.nanosec)
         pos = np.asarray(m.position, dtype=np.float64)
         vel = np.asarray(m.velocity, dtype=np.float64)
         eff = np.asarray(m.effort, dtype=np.float64)
