@@ -1,0 +1,100 @@
+"""Raw servo / encoder / load values to joint angles and back, and contact sites.
+
+Conventions of reflex-ros-pkg's ``reflex_driver_node.cpp`` (protocol facts B.2, B.3):
+- motor (spool) angle = inversion * (raw * scale / gear ratio - zero), scale = 4 * 2π / 4095
+  rad per tick (the firmware sets resolution divider 4);
+- proximal angle from the 14-bit finger encoder, unwrapped across 16383 -> 0; the driver at
+  HEAD uses ``encoder_zero - counts * scale`` (an older one the opposite sign): `encoder_sign`;
+- distal ≈ max(0, motor - proximal) (the tendon spooled beyond the proximal joint);
+- load: bits 0-9 magnitude, bit 10 direction, times the motor inversion.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+DYN_POS_SCALE = 4.0 * 2.0 * math.pi / 4095.0  # rad per tick, resolution divider 4
+ENC_COUNTS = 16383
+ENC_SCALE = 2.0 * math.pi / ENC_COUNTS  # rad per count, 14-bit
+ENC_WRAP_JUMP = 5000  # a jump larger than this between packets is a wrap (ROS driver)
+MX28_SCALE = 2.0 * math.pi / 4096.0  # rad per tick, MX-28 without a resolution divider
+
+
+def motor_angle(
+    raw: np.ndarray,
+    gear: np.ndarray,
+    inverted: np.ndarray,
+    zero: np.ndarray,
+    scale: float = DYN_POS_SCALE,
+) -> np.ndarray:
+    """Joint-side spool angle, rad, of raw servo positions."""
+    return np.asarray(inverted) * (np.asarray(raw, dtype=np.float64) * scale / gear - zero)
+
+
+def motor_raw(
+    angle: np.ndarray,
+    gear: np.ndarray,
+    inverted: np.ndarray,
+    zero: np.ndarray,
+    scale: float = DYN_POS_SCALE,
+    hi: int = 0xFFFF,
+) -> np.ndarray:
+    """Raw servo goal positions for joint-side spool angles (rounded, clamped to 0..hi)."""
+    raw = (np.asarray(inverted) * np.asarray(angle, dtype=np.float64) + zero) * gear / scale
+    return np.clip(np.rint(raw), 0, hi).astype(np.int64)
+
+
+def load_signed(raw: np.ndarray, inverted: np.ndarray) -> np.ndarray:
+    """Signed load in raw units (-1023..1023): positive when bit 10 is set, times inversion."""
+    raw = np.asarray(raw, dtype=np.int64)
+    mag = raw & 0x3FF
+    return np.asarray(inverted) * np.where(raw & 0x400, mag, -mag)
+
+
+class EncoderUnwrapper:
+    """Turns 14-bit encoder counts into continuous counts (the ROS driver's offset logic)."""
+
+    def __init__(self, n: int = 3) -> None:
+        self.offset = np.zeros(n, dtype=np.int64)
+        self.last: np.ndarray | None = None
+
+    def __call__(self, raw: np.ndarray) -> np.ndarray:
+        raw = np.asarray(raw, dtype=np.int64)
+        if self.last is not None:
+            jump = self.last - raw
+            self.offset += np.where(jump > ENC_WRAP_JUMP, ENC_COUNTS, 0)
+            self.offset -= np.where(jump < -ENC_WRAP_JUMP, ENC_COUNTS, 0)
+        self.last = raw.copy()
+        return raw + self.offset
+
+
+def proximal_angle(counts: np.ndarray, zero: np.ndarray, sign: float = -1.0) -> np.ndarray:
+    """Proximal joint angle, rad, from unwrapped encoder counts: sign * (counts*scale - zero).
+    sign -1 is reflex-ros-pkg HEAD (``zero - counts*scale``), +1 its older driver."""
+    return sign * (np.asarray(counts, dtype=np.float64) * ENC_SCALE - np.asarray(zero))
+
+
+def distal_approx(motor: np.ndarray, proximal: np.ndarray) -> np.ndarray:
+    """The driver's distal estimate: tendon spooled beyond the proximal joint, never < 0."""
+    return np.maximum(0.0, np.asarray(motor) - np.asarray(proximal))
+
+
+def contact_sites(preshape: float, proximal: np.ndarray, distal: np.ndarray) -> np.ndarray:
+    """(38, 3) hand-frame sensor-site XYZ at these angles: the same kinematics the twin uses
+    (`activetouch.sim.reflex_urdf`, pure numpy, no PyBullet), so grasps from the hardware and
+    the twin are in one frame."""
+    from activetouch.sim.reflex_urdf import ReflexGeometry, sensor_positions
+
+    return sensor_positions(_geometry(ReflexGeometry), preshape, proximal, distal)
+
+
+_GEOM = None
+
+
+def _geometry(cls):  # one default geometry (its sites cache by identity)
+    global _GEOM
+    if _GEOM is None:
+        _GEOM = cls()
+    return _GEOM

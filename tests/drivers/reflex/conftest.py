@@ -1,0 +1,67 @@
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from activetouch.drivers.reflex.emulator_takktile import (
+    EmulatorConfig,
+    KinematicFingers,
+    TakktileEmulator,
+)
+from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
+
+MOTOR_ZERO = [56.0, 57.0, 55.5, 53.0]
+ENCODER_ZERO = [1.0, 2.0, 0.5]
+
+
+def free_udp_port() -> int:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    return port
+
+
+def driver_config(state_port: int, command_port: int, **kw) -> ReflexTakktileConfig:
+    kw.setdefault("motor_zero_rad", list(MOTOR_ZERO))
+    kw.setdefault("encoder_zero_rad", list(ENCODER_ZERO))
+    return ReflexTakktileConfig(
+        type="reflex-takktile",
+        state_listen=f"127.0.0.1:{state_port}",
+        command_to=f"127.0.0.1:{command_port}",
+        multicast_group="",
+        **kw,
+    )
+
+
+@pytest.fixture
+def ports() -> tuple[int, int]:
+    return free_udp_port(), free_udp_port()
+
+
+@pytest.fixture
+def emulator(ports):
+    state_port, command_port = ports
+    emu = TakktileEmulator(
+        EmulatorConfig(
+            state_to=f"127.0.0.1:{state_port}",
+            command_listen=f"127.0.0.1:{command_port}",
+            motor_zero_rad=tuple(MOTOR_ZERO),
+            encoder_zero_rad=tuple(ENCODER_ZERO),
+            zero_offsets=[300.0 + 10 * i for i in range(38)],
+            noise_std=1.0,
+        ),
+        KinematicFingers(contact_spool=[1.0, 1.5, float("inf")]),
+    ).start()
+    yield emu
+    emu.stop()
+
+
+@pytest.fixture
+def hand(ports, emulator):
+    cfg = driver_config(*ports, zero_offsets=[300.0 + 10 * i for i in range(38)])
+    h = ReflexTakktileHand(cfg)
+    h.connect()
+    yield h
+    h.disconnect()

@@ -1,0 +1,308 @@
+"""The TakkTile driver on loopback UDP: against hand-built packets and against the emulator."""
+
+from __future__ import annotations
+
+import math
+import random
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from activetouch.devices import config_class, device_config
+from activetouch.drivers.reflex.common import StreamLostError
+from activetouch.drivers.reflex.takktile import ReflexTakktileHand
+from activetouch.errors import ConfigError, StoppedError
+
+from .conftest import MOTOR_ZERO, driver_config, free_udp_port
+from .packets import state_packet
+
+TICK = 4 * 2 * math.pi / 4095
+
+
+class Board:
+    """The test as the hand's board: a socket that sends hand-built packets and hears
+    commands."""
+
+    def __init__(self) -> None:
+        self.state_port = free_udp_port()
+        self.cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.cmd.bind(("127.0.0.1", 0))
+        self.cmd.settimeout(1.0)
+        self.tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.systime = 0
+
+    @property
+    def command_port(self) -> int:
+        return self.cmd.getsockname()[1]
+
+    def send(self, data: bytes) -> None:
+        self.tx.sendto(data, ("127.0.0.1", self.state_port))
+
+    def packet(self, **kw) -> bytes:
+        self.systime += 25_000
+        return state_packet(systime=self.systime, **kw)
+
+    def close(self) -> None:
+        self.cmd.close()
+        self.tx.close()
+
+
+@pytest.fixture
+def board():
+    b = Board()
+    yield b
+    b.close()
+
+
+def at_rest_positions() -> tuple[int, int, int, int]:
+    # Raw servo positions of spool 0 by hand: raw = (inv * 0 + zero) * gear / tick.
+    gear = (1.42, 1.42, 1.42, 1.5)
+    return tuple(round(z * g / TICK) for z, g in zip(MOTOR_ZERO, gear, strict=True))
+
+
+def feed(board: Board, stop: threading.Event, **kw) -> threading.Thread:
+    def run() -> None:
+        while not stop.is_set():
+            board.send(board.packet(**kw))
+            time.sleep(0.025)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t
+
+
+def test_independent_packets_and_open_command_bytes(board):
+    """Packets built from the published layout decode to the expected pressures and
+    contacts; open() sends the expected bytes to the command address."""
+    pressures = [500] * 38
+    pressures[4] = 500 + 21  # pointer sensor 4: over the threshold (20) above its offset
+    pressures[18] = 500 + 20  # thumb sensor 0: exactly at the threshold: not a contact
+    pressures[30] = 500 + 100  # a palm sensor
+    stop = threading.Event()
+    feed(board, stop, pressures_by_id=pressures, positions=at_rest_positions())
+    cfg = driver_config(board.state_port, board.command_port, zero_offsets=[500.0] * 38)
+    hand = ReflexTakktileHand(cfg)
+    try:
+        hand.connect()
+        s = hand.state()
+        assert not s.stale
+        assert s.pressures[4] == 21 and s.pressures[18] == 20 and s.pressures[30] == 100
+        assert np.flatnonzero(s.contact).tolist() == [4, 30]
+        assert np.allclose(s.motor, 0.0, atol=TICK)
+        # connect: hold targets, then position mode.
+        assert board.cmd.recv(64)[:1] == b"\x02"
+        assert board.cmd.recv(64) == bytes([1, 2, 2, 2, 2])
+        hand.open()
+        assert board.cmd.recv(64) == bytes([1, 2, 2, 2, 2])
+        targets = board.cmd.recv(64)
+        raw = at_rest_positions()
+        expect = b"\x02" + b"".join(int(v).to_bytes(2, "big") for v in raw)
+        assert targets == expect
+    finally:
+        stop.set()
+        hand.disconnect()
+
+
+def test_guarded_close_on_emulator(hand, emulator):
+    g = hand.guarded_close()
+    assert hand.last_close_reasons == ("contact", "contact", "limit")
+    assert set(g.sensor_ids.tolist()) >= {2, 3, 11, 12}
+    assert not (set(g.sensor_ids.tolist()) & set(range(18, 27)))  # the thumb touched nothing
+    assert g.xyz.shape == (g.n_contacts, 3)
+    assert np.all(g.pressures > 20)
+    # Proximal angles follow the emulated fingers: held where each met the object.
+    assert g.finger_angles[0] == pytest.approx(1.0 / 1.25, abs=0.02)
+    assert g.finger_angles[1] == pytest.approx(1.5 / 1.25, abs=0.02)
+    s = hand.state()
+    assert s.distal[2] == pytest.approx(s.motor[2] - s.finger_angles[2], abs=1e-9)
+    hand.open()
+    spool, _ = emulator.joint_state()
+    assert np.all(np.abs(spool) < 0.06)
+
+
+def test_preshape(hand, emulator):
+    hand.preshape(0.8)
+    assert hand.state().preshape == pytest.approx(0.8, abs=0.06)
+    with pytest.raises(ValueError):
+        hand.preshape(2.0)
+
+
+def test_stop_interrupts_close_within_one_step(hand, emulator):
+    emulator.set_object([math.inf] * 3)
+    result: dict = {}
+
+    def close() -> None:
+        try:
+            hand.guarded_close()
+        except StoppedError:
+            result["stopped_at"] = time.monotonic()
+
+    t = threading.Thread(target=close)
+    t.start()
+    time.sleep(0.3)
+    n_before = len(emulator.commands)
+    t_stop = time.monotonic()
+    hand.stop()
+    t.join(timeout=2.0)
+    assert "stopped_at" in result
+    assert result["stopped_at"] - t_stop < 0.03  # within one control step (25 ms)
+    time.sleep(0.1)
+    after = emulator.commands[n_before:]
+    # The hold is the last thing sent: targets equal to where the motors were.
+    assert after and after[-1][0] == "targets"
+    spool_then, _ = emulator.joint_state()
+    time.sleep(0.2)
+    assert np.allclose(emulator.joint_state()[0], spool_then, atol=1e-6)
+    with pytest.raises(StoppedError):
+        hand.guarded_close()
+    with pytest.raises(StoppedError):
+        hand.preshape(0.5)
+    hand.open()  # releasing is allowed while stopped
+    hand.clear_stop()
+    hand.preshape(0.2)
+
+
+def test_stream_loss_is_an_error_and_stale(hand, emulator):
+    emulator.set_object([math.inf] * 3)
+    result: dict = {}
+
+    def close() -> None:
+        try:
+            hand.guarded_close()
+        except StreamLostError as e:
+            result["err"] = e
+
+    t = threading.Thread(target=close)
+    t.start()
+    time.sleep(0.2)
+    n_before = len(emulator.commands)
+    emulator.faults.stalled = True
+    t0 = time.monotonic()
+    t.join(timeout=2.0)
+    assert not t.is_alive() and "err" in result
+    assert time.monotonic() - t0 < 0.2 + 0.15
+    time.sleep(0.1)
+    assert hand.state().stale
+    assert hand.stats()["stream_lost"] == 1
+    # The driver commanded a hold when it noticed.
+    assert emulator.commands[n_before:][-1][0] == "targets"
+    with pytest.raises(StreamLostError):
+        hand.guarded_close()
+    emulator.faults.stalled = False  # the stream comes back: so does the hand
+    time.sleep(0.1)
+    assert not hand.state().stale
+    hand.open()
+
+
+def test_fuzzed_packets_into_live_driver(board):
+    """>= 10,000 random, truncated, oversized and bit-flipped datagrams: all counted, the
+    receive thread survives, valid packets still decode afterwards."""
+    stop = threading.Event()
+    feeder = feed(board, stop, positions=at_rest_positions())
+    hand = ReflexTakktileHand(driver_config(board.state_port, board.command_port))
+    try:
+        hand.connect()
+        stop.set()
+        feeder.join()
+        time.sleep(0.05)
+        before = hand.stats()
+        rng = random.Random(1)
+        good = board.packet(positions=at_rest_positions())
+        n = 0
+        for i in range(10_000):
+            kind = i % 4
+            if kind == 0:
+                d = bytes(rng.randrange(256) for _ in range(rng.randrange(0, 400)))
+            elif kind == 1:
+                d = good[: rng.randrange(0, 202)]
+            elif kind == 2:
+                d = good + bytes(rng.randrange(1, 300))
+            else:
+                b = bytearray(good)
+                for _ in range(rng.randrange(1, 8)):
+                    bit = rng.randrange(202 * 8)
+                    b[bit // 8] ^= 1 << (bit % 8)
+                d = bytes(b)
+            board.send(d)
+            n += 1
+            if i % 200 == 199:  # let the driver keep up (loopback drops on a full buffer)
+                deadline = time.monotonic() + 2.0
+                while hand.stats()["received"] - before["received"] < n and (
+                    time.monotonic() < deadline
+                ):
+                    time.sleep(0.002)
+        deadline = time.monotonic() + 3.0
+        while hand.stats()["received"] - before["received"] < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        after = hand.stats()
+        got = after["received"] - before["received"]
+        assert got == n
+        refused = sum(after.get(k, 0) - before.get(k, 0) for k in after if k.startswith("refused"))
+        accepted = after["accepted"] - before["accepted"]
+        dup = after["duplicate_or_old"] - before["duplicate_or_old"]
+        assert refused + accepted + dup == n  # every datagram counted once
+        assert refused > 7000
+        assert hand._thread is not None and hand._thread.is_alive()
+        # Valid packets still decode after the storm (a later board clock).
+        board.systime += 10**9
+        pressures = [0] * 38
+        pressures[7] = 55
+        board.send(board.packet(pressures_by_id=pressures, positions=at_rest_positions()))
+        time.sleep(0.05)
+        assert hand.state().pressures[7] == 55
+    finally:
+        stop.set()
+        hand.disconnect()
+
+
+def test_faults_five_percent_loss_and_friends(hand, emulator):
+    f = emulator.faults
+    f.loss = f.duplicate = f.reorder = f.corrupt = f.truncate = 0.05
+    g = hand.guarded_close()
+    assert hand.last_close_reasons[:2] == ("contact", "contact")
+    assert {2, 3, 11, 12} <= set(g.sensor_ids.tolist())
+    stats = hand.stats()
+    assert stats["duplicate_or_old"] > 0
+    assert stats.get("refused_length", 0) > 0
+    hand.open()
+
+
+def test_stuck_sensors(hand, emulator):
+    emulator.faults.stuck_saturated = [5]
+    emulator.faults.stuck_zero = [6]
+    time.sleep(0.1)
+    s = hand.state()
+    assert s.contact[5]  # a saturated sensor reads as contact: calibration must catch it
+    assert s.pressures[6] < -100  # zero raw, minus its offset
+
+
+def test_connect_without_stream_times_out():
+    cfg = driver_config(free_udp_port(), free_udp_port(), connect_timeout_s=0.2)
+    hand = ReflexTakktileHand(cfg)
+    t0 = time.monotonic()
+    with pytest.raises(StreamLostError):
+        hand.connect()
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_registry_and_config_checks():
+    assert config_class("hand", "reflex-takktile").__name__ == "ReflexTakktileConfig"
+    cfg = device_config(
+        "hand",
+        {
+            "type": "reflex-takktile",
+            "state_listen": "127.0.0.1:5000",
+            "command_to": "127.0.0.1:5001",
+            "multicast_group": "",
+        },
+    )
+    assert cfg.state_listen == "127.0.0.1:5000"
+    with pytest.raises(ConfigError):
+        device_config("hand", {"type": "reflex-takktile", "state_listen": "nonsense"})
+    with pytest.raises(ConfigError):
+        device_config("hand", {"type": "reflex-takktile", "gear_ratio": [1.0]})
+    with pytest.raises(ConfigError):
+        device_config("hand", {"type": "reflex-takktile", "motor_inverted": [1, 1, 2, 1]})
