@@ -192,6 +192,7 @@ class BaxterArm(Arm):
         self._joints: _Stamped | None = None  # (position, velocity, stamp)
         self._robot: _Stamped | None = None  # ros1.RobotState
         self._malformed = 0
+        self._best_lag = math.inf  # s, smallest (wall clock - header stamp) seen
         self._subs: list[Any] = []
         self._pubs: dict[str, Any] = {}
 
@@ -279,8 +280,18 @@ class BaxterArm(Arm):
         sel = msg.select(self._names)
         if sel is None or not (np.all(np.isfinite(sel[0])) and np.all(np.isfinite(sel[1]))):
             return  # another arm's or head's message, or garbage values
+        now = time.monotonic()
+        # Delayed states: the robot's clock and ours differ by an unknown offset, so compare
+        # each message's transit lag with the smallest seen (relaxed by 1 ms/s for clock
+        # drift). A message later than that by more than state_timeout_s counts as lost.
+        lag = time.time() - msg.stamp
         with self._cond:
-            self._joints = _Stamped((sel[0], sel[1], msg.stamp), time.monotonic())
+            if self._joints is not None:
+                self._best_lag = min(lag, self._best_lag + 1e-3 * (now - self._joints.at))
+            else:
+                self._best_lag = lag
+            late = max(lag - self._best_lag, 0.0)
+            self._joints = _Stamped((sel[0], sel[1], msg.stamp), now - late)
             self._cond.notify_all()
 
     def _on_robot_state(self, sample: Any) -> None:
@@ -331,8 +342,8 @@ class BaxterArm(Arm):
 
     def joint_state(self) -> JointState:
         self._require_connected()
-        js = self._wait_joints(self.cfg.state_timeout_s)
-        return JointState(self._names, js.value[0].copy(), js.value[1].copy(), js.at)
+        q, v = self._fresh_joints()
+        return JointState(self._names, q.copy(), v.copy(), self._joints.at)
 
     def _require_connected(self) -> None:
         if self._session is None:
@@ -342,6 +353,11 @@ class BaxterArm(Arm):
         if not self.cfg.require_enabled:
             return
         st = self.robot_state()
+        if st is None:  # e.g. right after connect: wait for one, briefly
+            deadline = time.monotonic() + self.cfg.state_timeout_s
+            with self._cond:
+                while (st := self.robot_state()) is None and time.monotonic() < deadline:
+                    self._cond.wait(max(deadline - time.monotonic(), 0.0))
         if st is None:
             raise NodeUnavailableError(
                 f"{what}: no /robot/state within {self.cfg.state_timeout_s:g} s"
