@@ -13,9 +13,16 @@ def ros_string(s: str) -> bytes:
     return len(b).to_bytes(4, "little") + b
 
 
-def joint_state(names: list[str], pos: list[float], vel: list[float], seq: int = 7) -> bytes:
+def joint_state(
+    names: list[str],
+    pos: list[float],
+    vel: list[float],
+    seq: int = 7,
+    stamp_ns: int = 1_700_000_000_500_000_000,
+) -> bytes:
     # Header: uint32 seq, time (uint32 sec, uint32 nsec), string frame_id
-    out = struct.pack("<III", seq, 1700000000, 500_000_000) + ros_string("base")
+    sec, nsec = divmod(stamp_ns, 10**9)
+    out = struct.pack("<III", seq, sec, nsec) + ros_string("base")
     out += len(names).to_bytes(4, "little") + b"".join(ros_string(n) for n in names)
     for arr in (pos, vel, [0.0] * len(names)):
         out += len(arr).to_bytes(4, "little") + b"".join(struct.pack("<d", x) for x in arr)
