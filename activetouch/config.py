@@ -352,11 +352,13 @@ def load_config(
     return cfg
 
 
-def set_devices(cfg: Config, raw: dict[str, dict]) -> None:
+def set_devices(
+    cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVICE_SECTIONS
+) -> None:
     """Make the typed `cfg.hand` / `cfg.arm` from raw sections (``{"type": ..., ...}``)."""
     from activetouch.devices import device_config
 
-    for kind in DEVICE_SECTIONS:
+    for kind in only:
         setattr(cfg, kind, device_config(kind, raw.get(kind, {})))
 
 

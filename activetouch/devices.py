@@ -15,7 +15,8 @@ Adding a device type is one module plus one line here:
 
 Devices that share something (the twin's hand and arm share one PyBullet world; the fake
 hand reads the fake arm's pose) get it from `DeviceContext.shared`, keyed by name, made once.
-A resource may also add served nodes (the twin's ``sim/place``) with `DeviceContext.add_node`.
+A simulated resource also says how to put an object on its table (`DeviceContext.add_place`):
+the service serves that as the ``sim/place`` node.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from activetouch.errors import ConfigError
 if TYPE_CHECKING:
     from activetouch.config import Config
     from activetouch.interfaces import Arm, Hand
+    from activetouch.planning.motion.base import WristMotion
 
 HAND_TYPES: dict[str, str] = {
     "twin": "activetouch.sim.devices:TwinHandConfig",
@@ -69,6 +71,16 @@ class HandConfig(DeviceConfig):
 class ArmConfig(DeviceConfig):
     def make(self, ctx: DeviceContext) -> Arm:
         raise NotImplementedError
+
+    def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:
+        """The motion layer that brings this arm's hand to object-frame wrist poses. By
+        default a floating wrist's (its joints are the hand pose); arm types with real
+        kinematics return theirs (IK, collision-checked paths, timing)."""
+        from activetouch.planning.motion.floating import WRIST_JOINTS, FloatingWristMotion
+
+        if tuple(arm.joint_names) != WRIST_JOINTS:
+            raise ConfigError(f"arm type {self.type!r} has no motion layer for wrist poses")
+        return FloatingWristMotion(arm)
 
 
 def _registry(kind: str) -> dict[str, str]:
@@ -113,11 +125,13 @@ def device_config(kind: str, data: dict[str, Any]) -> DeviceConfig:
 class DeviceContext:
     """What device factories share: the whole configuration and named shared resources."""
 
-    def __init__(self, cfg: Config) -> None:
+    def __init__(self, cfg: Config, data: Any = None) -> None:
         self.cfg = cfg
+        self.data = data  # the data directory (--data), None: the default
         self._shared: dict[str, Any] = {}
         self._closers: list[Callable[[], None]] = []
-        self.node_factories: list[Callable[..., Any]] = []
+        self.place: Callable[[Any], Any] | None = None
+        self.placement_of: Callable[[], Any] | None = None
         self.locks: dict[str, threading.Lock] = {}
 
     def shared(self, name: str, make: Callable[[], Any]) -> Any:
@@ -133,9 +147,15 @@ class DeviceContext:
     def on_close(self, fn: Callable[[], None]) -> None:
         self._closers.append(fn)
 
-    def add_node(self, factory: Callable[..., Any]) -> None:
-        """`factory(session, robot, cfg)` -> a served node, started beside the hand and arm."""
-        self.node_factories.append(factory)
+    def add_place(self, place: Callable[[Any], Any], placement: Callable[[], Any]) -> None:
+        """`place(SimPlaceRequest) -> SimPlaceResult`: how a simulated robot puts an object on
+        its table (served as ``sim/place``); `placement()`: where the placed object now is."""
+        if self.place is not None and self.place is not place:
+            raise ConfigError(
+                "the hand and the arm are simulated by two different devices, and each places "
+                "the object: use the twin (or the fake) for both"
+            )
+        self.place, self.placement_of = place, placement
 
     def close(self) -> None:
         while self._closers:
@@ -152,12 +172,22 @@ class DeviceContext:
 class Devices:
     hand: Hand
     arm: Arm
+    wrist: WristMotion  # object-frame wrist poses -> motion of `arm`
     ctx: DeviceContext
     lock: threading.Lock  # held by the nodes around every device command
 
     @property
     def simulated(self) -> bool:
         return bool(self.ctx.cfg.hand.simulated and self.ctx.cfg.arm.simulated)
+
+    def placement(self) -> Any:
+        """Where the object is (`planning.motion.base.Placement`): as a simulated robot placed
+        it, else as the workcell configures it."""
+        if self.ctx.placement_of is not None:
+            return self.ctx.placement_of()
+        from activetouch.planning.motion.base import workcell_placement
+
+        return workcell_placement(self.ctx.cfg.workcell)
 
     def close(self) -> None:
         for dev in (self.hand, self.arm):
@@ -170,12 +200,14 @@ class Devices:
         self.ctx.close()
 
 
-def make_devices(cfg: Config) -> Devices:
-    """Make and connect the hand and the arm of `cfg` (``[hand]``, ``[arm]``)."""
-    ctx = DeviceContext(cfg)
+def make_devices(cfg: Config, data: Any = None) -> Devices:
+    """Make and connect the hand and the arm of `cfg` (``[hand]``, ``[arm]``); `data` is the
+    data directory (object library, datasets) for the simulated devices."""
+    ctx = DeviceContext(cfg, data)
     try:
         hand = cfg.hand.make(ctx)
         arm = cfg.arm.make(ctx)
+        wrist = cfg.arm.make_wrist(arm, ctx)
         hand.connect()
         arm.connect()
     except BaseException:
@@ -183,4 +215,6 @@ def make_devices(cfg: Config) -> Devices:
         raise
     # Devices on one shared resource serialise through its lock; otherwise one lock for both.
     lock = next(iter(ctx.locks.values()), None) or threading.Lock()
-    return Devices(hand, arm, ctx, lock)
+    devices = Devices(hand, arm, wrist, ctx, lock)
+    wrist.set_placement(devices.placement())
+    return devices

@@ -75,7 +75,6 @@ def _median(xs: list[float]) -> float:
 def main(argv: list[str] | None = None) -> int:
     from activetouch.planning.policies import make_policy
     from activetouch.service.client import local_daemon, open_client
-    from activetouch.service.daemon import place_in_twin
     from activetouch.service.messages import RecognizeRequest
     from activetouch.service.recognize import load_trained, model_path, recognize_in_twin
     from activetouch.service.session import RecognitionSession
@@ -120,18 +119,18 @@ def main(argv: list[str] | None = None) -> int:
         spec = library.get(obj)
         first: list[float] = []
         t0 = time.perf_counter()
-        place_in_twin(twin.world, twin.hand, spec, seed)
+        twin.place(spec, seed)
         policy = make_policy(args.policy, cfg.planner, model.observation, kernel)
         session_cfg = dataclasses.replace(cfg.session, max_moves=max_moves)
         res = RecognitionSession(
             twin.hand,
-            twin.arm,
+            twin.wrist,
             model,
             policy,
             session_cfg,
             np.random.default_rng(seed),
             lambda _ev: first or first.append(time.perf_counter() - t0),
-            support_z=spec.support_z,
+            support_z=twin.support_z,
         ).run()
         total = time.perf_counter() - t0
         return {"first_s": first[0], "total_s": total, "labels": res.labels, "poses": res.pose_ids}
@@ -164,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         with (
             local_daemon(root, args=serve_args, log=Path(tmp) / "daemon.log") as d,
             open_client([d.endpoint], d.robot, timeout=cfg.service.node_timeout_s) as client,
-            open_twin(None, cfg.sim) as twin,
+            open_twin(None, cfg.sim, workcell=cfg.workcell) as twin,
         ):
             console.print(f"daemon pid {d.proc.pid} on {d.endpoint}; warming up ...")
             local(objects[0], seeds[0])

@@ -1,7 +1,8 @@
 """Training collection (paper Alg. 1): grasp an object at every pose of its grid, store contacts.
 
-Runs on any `Hand` + `Arm` pair. Progress is saved in batches to the dataset, so an interrupted
-collection resumes where it stopped: poses already grasped, or found unreachable, are skipped.
+Runs on any `Hand` + `WristMotion` pair. Progress is saved in batches to the dataset, so an
+interrupted collection resumes where it stopped: poses already grasped, or found unreachable,
+are skipped.
 """
 
 from __future__ import annotations
@@ -11,8 +12,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from activetouch.errors import UnreachableError
-from activetouch.interfaces import Arm, Hand, Pose
+from activetouch.interfaces import Hand, Pose
 from activetouch.planning.grid import GridPoses
+from activetouch.planning.motion.base import WristMotion
 from activetouch.recognition.contacts import drop_support_contacts
 from activetouch.recognition.dataset import Dataset, GraspRecord
 
@@ -38,7 +40,7 @@ def pending_poses(dataset: Dataset, name: str, grid: GridPoses) -> list[int]:
 
 def collect_object(
     hand: Hand,
-    arm: Arm,
+    wrist: WristMotion,
     dataset: Dataset,
     name: str,
     grid: GridPoses,
@@ -71,7 +73,7 @@ def collect_object(
         hand.open()
         hand.preshape(float(grid.preshapes[i]))
         try:
-            arm.move_wrist(pose)
+            wrist.move_to(pose)
         except UnreachableError:
             skipped.append(pid)
             stats.skipped += 1

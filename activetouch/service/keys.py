@@ -10,17 +10,20 @@ widen a subscription or a query to other robots.
 | hand/open | queryable | Empty -> Reply[None] |
 | hand/preshape | queryable | PreshapeRequest -> Reply[None] |
 | hand/guarded_close | queryable | Empty -> Reply[GraspMsg] |
+| hand/stop | queryable (served at once, beside a running grasp) | Empty -> Reply[None] |
+| hand/clear_stop | queryable | Empty -> Reply[None] |
 | arm/joint_states | publication (periodic) | JointStateMsg |
 | arm/joint_state | queryable | Empty -> Reply[JointStateMsg] |
 | arm/move_wrist | queryable | MoveWristRequest -> Reply[None] |
 | arm/execute | queryable | ExecuteRequest -> Reply[None] |
-| arm/stop | queryable | Empty -> Reply[None] |
+| arm/stop | queryable (served at once, beside a running motion) | Empty -> Reply[None] |
+| arm/clear_stop | queryable | Empty -> Reply[None] |
 | recognize | queryable (daemon) | RecognizeRequest -> Reply[RecognizeResult] |
 | progress | publication (daemon) | Progress |
 | cancel | queryable (daemon) | CancelRequest -> Reply[CancelResult] |
 | status | queryable (daemon) | Empty -> Reply[Status] |
 | estop | queryable (daemon) | EStopRequest -> Reply[EStopResult] |
-| sim/place | queryable (twin only) | SimPlaceRequest -> Reply[SimPlaceResult] |
+| sim/place | queryable (simulated devices only) | SimPlaceRequest -> Reply[SimPlaceResult] |
 | alive/<node> | liveliness token | (none) |
 """
 
@@ -91,6 +94,14 @@ class Keys:
     def hand_guarded_close(self) -> str:
         return self._k("hand", "guarded_close")
 
+    @property
+    def hand_stop(self) -> str:
+        return self._k("hand", "stop")
+
+    @property
+    def hand_clear_stop(self) -> str:
+        return self._k("hand", "clear_stop")
+
     # arm node
     @property
     def arm_joint_states(self) -> str:
@@ -111,6 +122,10 @@ class Keys:
     @property
     def arm_stop(self) -> str:
         return self._k("arm", "stop")
+
+    @property
+    def arm_clear_stop(self) -> str:
+        return self._k("arm", "clear_stop")
 
     # recognition daemon
     @property

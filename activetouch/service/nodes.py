@@ -49,7 +49,8 @@ from activetouch.interfaces import (
     JointTrajectory,
     Pose,
 )
-from activetouch.service.keys import ARM_NODE, HAND_NODE, Keys
+from activetouch.planning.motion.base import Placement, WristMotion
+from activetouch.service.keys import ARM_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.service.messages import (
     Empty,
     ExecuteRequest,
@@ -60,6 +61,8 @@ from activetouch.service.messages import (
     MoveWristRequest,
     PreshapeRequest,
     Reply,
+    SimPlaceRequest,
+    SimPlaceResult,
     decode,
     encode,
     error_types,
@@ -352,6 +355,9 @@ class HandNode(_ServedNode):
                 k.hand_guarded_close, Empty, lambda _r: grasp_to_msg(hand.guarded_close())
             ),
             "state": _Op(k.hand_state, Empty, lambda _r: hand_state_to_msg(hand.state())),
+            # At once, beside a running grasp: the close ends within one control step.
+            "stop": _Op(k.hand_stop, Empty, lambda _r: hand.stop(), fast=True),
+            "clear_stop": _Op(k.hand_clear_stop, Empty, lambda _r: hand.clear_stop(), fast=True),
         }
         self._start()
 
@@ -362,6 +368,8 @@ class HandNode(_ServedNode):
 class ArmNode(_ServedNode):
     """Serve `arm` on ``activetouch/<robot>/arm/...``; publish joint states at `state_hz`.
 
+    ``move_wrist`` (a wrist pose in the object frame) goes through `wrist`, the motion layer
+    for this arm, next to the arm (`placement()` says where the object is before each move).
     ``stop`` runs at once on its own thread, concurrently with a running motion. Closing the
     node while a motion runs stops the arm."""
 
@@ -373,6 +381,8 @@ class ArmNode(_ServedNode):
         session: zenoh.Session,
         robot: str,
         *,
+        wrist: WristMotion | None = None,
+        placement: Callable[[], Placement] | None = None,
         state_hz: float = 20.0,
         lock: threading.Lock | None = None,
     ) -> None:
@@ -380,22 +390,30 @@ class ArmNode(_ServedNode):
             session, robot, state_key=Keys(robot).arm_joint_states, state_hz=state_hz, lock=lock
         )
         self.arm = arm
+        self.wrist = wrist
+        self.placement = placement
         k = self.keys
         self._ops = {
             "joint_state": _Op(
                 k.arm_joint_state, Empty, lambda _r: joint_state_to_msg(arm.joint_state())
             ),
-            "move_wrist": _Op(
-                k.arm_move_wrist, MoveWristRequest, lambda r: arm.move_wrist(pose_from_msg(r.pose))
-            ),
+            "move_wrist": _Op(k.arm_move_wrist, MoveWristRequest, self._move_wrist),
             "execute": _Op(
                 k.arm_execute,
                 ExecuteRequest,
                 lambda r: arm.execute(trajectory_from_msg(r.trajectory)),
             ),
             "stop": _Op(k.arm_stop, Empty, lambda _r: arm.stop(), fast=True),
+            "clear_stop": _Op(k.arm_clear_stop, Empty, lambda _r: arm.clear_stop(), fast=True),
         }
         self._start()
+
+    def _move_wrist(self, req: MoveWristRequest) -> None:
+        if self.wrist is None:
+            raise ActiveTouchError(f"the {self.node_name} node has no motion layer for move_wrist")
+        if self.placement is not None:
+            self.wrist.set_placement(self.placement())
+        self.wrist.move_to(pose_from_msg(req.pose))
 
     def _read_state(self) -> Message:
         return joint_state_to_msg(self.arm.joint_state())
@@ -404,6 +422,25 @@ class ArmNode(_ServedNode):
         if self._busy in ("move_wrist", "execute"):
             log.warning("arm node closing during %s: stopping the arm", self._busy)
             self.arm.stop()
+
+
+class PlaceNode(_ServedNode):
+    """Simulated robots only: ``sim/place`` puts an object on the table via `place`
+    (`SimPlaceRequest` -> `SimPlaceResult`), e.g. the twin's or the fake's."""
+
+    node_name = SIM_NODE
+
+    def __init__(
+        self,
+        place: Callable[[SimPlaceRequest], SimPlaceResult],
+        session: zenoh.Session,
+        robot: str,
+        *,
+        lock: threading.Lock | None = None,
+    ) -> None:
+        super().__init__(session, robot, state_key=Keys(robot).sim_place, state_hz=0.0, lock=lock)
+        self._ops = {"place": _Op(self.keys.sim_place, SimPlaceRequest, place)}
+        self._start()
 
 
 # --------------------------------------------------------------------------- clients
@@ -597,9 +634,16 @@ class RemoteHand(_RemoteDevice, Hand):
     def state(self) -> HandState:
         return hand_state_from_msg(self._call("state", self.keys.hand_state, Empty(), HandStateMsg))
 
+    def stop(self) -> None:
+        self._call("stop", self.keys.hand_stop, Empty(), None)
 
-class RemoteArm(_RemoteDevice, Arm):
-    """An `Arm` served by an `ArmNode` elsewhere.
+    def clear_stop(self) -> None:
+        self._call("clear_stop", self.keys.hand_clear_stop, Empty(), None)
+
+
+class RemoteArm(_RemoteDevice, WristMotion):
+    """The arm served by an `ArmNode` elsewhere: its joint-level calls, and wrist motion
+    (``move_to`` = ``arm/move_wrist``, planned by the node's motion layer, next to the arm).
 
     `timeout` bounds quick calls (joint_state, stop); `motion_timeout` bounds move_wrist, and
     execute waits for at least the trajectory's duration plus `timeout`."""
@@ -633,8 +677,26 @@ class RemoteArm(_RemoteDevice, Arm):
             self.motion_timeout,
         )
 
+    def move_to(self, pose: Pose) -> None:
+        self.move_wrist(pose)
+
     def stop(self) -> None:
         self._call("stop", self.keys.arm_stop, Empty(), None)
+
+    def clear_stop(self) -> None:
+        self._call("clear_stop", self.keys.arm_clear_stop, Empty(), None)
+
+
+class RemotePlace(_RemoteNode):
+    """The ``sim/place`` node of a simulated robot."""
+
+    def __init__(self, session: zenoh.Session, robot: str, timeout: float) -> None:
+        super().__init__(session, robot, SIM_NODE, timeout)
+
+    def place(self, obj: str, seed: int | None) -> SimPlaceResult:
+        return self._call(
+            "place", self.keys.sim_place, SimPlaceRequest(object=obj, seed=seed), SimPlaceResult
+        )
 
 
 class Latest(Generic[M]):
@@ -736,3 +798,52 @@ class AliveNodes:
         sub, self._sub = self._sub, None
         if sub is not None:
             undeclare_quietly(sub)
+
+
+class DeviceNodes:
+    """The robot's devices served as its hand and arm nodes (and ``sim/place`` when they are
+    simulated), all holding the devices' one lock. Whatever the device types: the twin, the
+    fakes or real drivers (activetouch.devices)."""
+
+    def __init__(self, devices: Any, session: zenoh.Session, robot: str, state_hz: float) -> None:
+        self.devices = devices
+        self.nodes: list[_ServedNode] = []
+        lock = devices.lock
+        try:
+            self.nodes.append(
+                HandNode(devices.hand, session, robot, state_hz=state_hz, lock=lock)
+            )
+            self.nodes.append(
+                ArmNode(
+                    devices.arm,
+                    session,
+                    robot,
+                    wrist=devices.wrist,
+                    placement=devices.placement,
+                    state_hz=state_hz,
+                    lock=lock,
+                )
+            )
+            if devices.ctx.place is not None:
+                self.nodes.append(PlaceNode(devices.ctx.place, session, robot, lock=lock))
+        except Exception:
+            self.close()
+            raise
+        cfg = devices.ctx.cfg
+        log.info(
+            "device nodes serving",
+            extra={
+                "robot": robot,
+                "hand": cfg.hand.type,
+                "arm": cfg.arm.type,
+                "nodes": ",".join(n.node_name for n in self.nodes),
+            },
+        )
+
+    def healthy(self) -> bool:
+        return all(n._worker.is_alive() for n in self.nodes)
+
+    def close(self, join_timeout: float = 1.0) -> None:
+        for node in reversed(self.nodes):
+            node.close(join_timeout)
+        self.nodes.clear()

@@ -59,16 +59,16 @@ def recognize_in_twin(
     spec = library.get(object_name)
     policy = make_policy(policy_name, cfg.planner, model.observation, model.classifier.kernel())
     rng = np.random.default_rng(seed)
-    with open_twin(spec, cfg.sim, seed=seed) as twin:
+    with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
         session = RecognitionSession(
             twin.hand,
-            twin.arm,
+            twin.wrist,
             model,
             policy,
             session_cfg,
             rng,
             on_progress,
             cancel,
-            support_z=spec.support_z,
+            support_z=twin.support_z,
         )
         return session.run()

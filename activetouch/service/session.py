@@ -1,7 +1,8 @@
-"""The recognition session (paper Alg. 2, test stage) on any `Hand` + `Arm` pair.
+"""The recognition session (paper Alg. 2, test stage) on any `Hand` + `WristMotion` pair.
 
 A first grasp at a random training pose; then repeat: the policy plans the next poses from the
-current histogram, the arm moves to each, the hand grasps, the histogram grows and the
+current histogram, the arm moves to each, the hand takes the preshape training used there and
+grasps, the histogram grows and the
 classifier answers after every grasp (the paper classified only after each whole path). Poses
 that cannot be reached are skipped, marked visited and counted, as on the real robot. It stops
 when the top class stays above `confidence` for `stable_grasps` grasps in a row, when the move
@@ -19,8 +20,9 @@ import numpy as np
 
 from activetouch.config import SessionConfig
 from activetouch.errors import ConfigError, UnreachableError
-from activetouch.interfaces import Arm, Grasp, Hand, Pose
+from activetouch.interfaces import Grasp, Hand, Pose
 from activetouch.model import TrainedModel
+from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.policies import Plan, PlanningState, Policy
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
 
@@ -68,11 +70,18 @@ def top_k(p: np.ndarray, names: tuple[str, ...], k: int = 3) -> list[tuple[str, 
     return [(names[i], float(p[i])) for i in order]
 
 
+def training_preshapes(model: TrainedModel) -> np.ndarray:
+    """(P,) the preshape training used at each of the model's poses: the grid has one preshape
+    for all its poses (`grid.preshape`, stored with the model's config)."""
+    preshape = float(model.config.get("grid", {}).get("preshape", 0.0))
+    return np.full(len(model.observation.pose_xyz), preshape)
+
+
 class RecognitionSession:
     def __init__(
         self,
         hand: Hand,
-        arm: Arm,
+        wrist: WristMotion,
         model: TrainedModel,
         policy: Policy,
         cfg: SessionConfig,
@@ -82,12 +91,12 @@ class RecognitionSession:
         support_z: float | None = None,
     ) -> None:
         """`support_z`: the table plane in the object frame (the object pose is known, as in
-        the paper); contacts on it are dropped, as in training."""
+        the paper, from the workcell); contacts on it are dropped, as in training."""
         if cfg.max_moves < 1:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
             raise ConfigError(f"session.stable_grasps must be >= 1, got {cfg.stable_grasps}")
-        self.hand, self.arm, self.model, self.policy = hand, arm, model, policy
+        self.hand, self.wrist, self.model, self.policy = hand, wrist, model, policy
         self.cfg, self.rng = cfg, rng
         self.on_progress = on_progress
         self.cancel = cancel or threading.Event()
@@ -97,11 +106,13 @@ class RecognitionSession:
         )
         obs = model.observation
         self._poses = np.concatenate([obs.pose_xyz, obs.pose_quat], axis=1)
+        self._preshapes = training_preshapes(model)
 
     def _grasp_at(self, pose_id: int) -> tuple[Grasp, Pose]:
         pose = Pose.from_array(self._poses[pose_id])
         self.hand.open()
-        self.arm.move_wrist(pose)  # raises UnreachableError
+        self.hand.preshape(float(self._preshapes[pose_id]))  # as training grasped here
+        self.wrist.move_to(pose)  # raises UnreachableError
         grasp = self.hand.guarded_close()
         self.hand.open()
         if self.support_z is not None:

@@ -53,16 +53,16 @@ def _collect_one(
         if queue is not None:
             queue.put((name, done, total))  # type: ignore[attr-defined]
 
-    with open_twin(spec, cfg.sim, seed=cfg.sim.seed) as twin:
+    with open_twin(spec, cfg.sim, seed=cfg.sim.seed, workcell=cfg.workcell) as twin:
         return collect_object(
             twin.hand,
-            twin.arm,
+            twin.wrist,
             ds,
             name,
             grid,
             attrs={"extents": [float(v) for v in spec.extents], "set": spec.set},
             on_grasp=report,
-            support_z=spec.support_z,
+            support_z=twin.support_z,
             support_margin_m=cfg.recognition.support_margin_m,
         )
 

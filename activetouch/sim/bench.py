@@ -36,6 +36,7 @@ from activetouch.errors import UnreachableError
 from activetouch.interfaces import N_FINGER_SENSORS, SENSORS_PER_FINGER, Pose
 from activetouch.planning.grid import look_at_quaternion, training_grid
 from activetouch.sim.hand import SimHand
+from activetouch.sim.twin import twin_wrist
 from activetouch.sim.world import SimArm, SimWorld
 
 PRIMITIVES = {
@@ -134,7 +135,7 @@ def bench_grasps(
         preshapes = rng.choice([0.0, 0.8], size=n)
         # Warm-up (first collision queries build Bullet's caches).
         hand.open()
-        arm.move_wrist(Pose([0.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]))
+        twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.5], [1.0, 0.0, 0.0, 0.0]))
         hand.guarded_close()
         close_s, contacts, queries, unreachable = 0.0, [], [], 0
         t0 = time.perf_counter()
@@ -142,7 +143,7 @@ def bench_grasps(
             hand.open()
             hand.preshape(float(pre))
             try:
-                arm.move_wrist(pose)
+                twin_wrist(arm).move_to(pose)
             except UnreachableError:
                 unreachable += 1
                 continue
@@ -187,7 +188,7 @@ def bench_grid(
             hand.open()
             hand.preshape(float(grid.preshapes[i]))
             try:
-                arm.move_wrist(Pose.from_array(grid.poses[i]))
+                twin_wrist(arm).move_to(Pose.from_array(grid.poses[i]))
             except UnreachableError:
                 unreachable += 1
                 continue

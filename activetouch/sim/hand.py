@@ -65,6 +65,7 @@ from activetouch.interfaces import (
     Grasp,
     Hand,
     HandState,
+    StopLatch,
 )
 from activetouch.sim.reflex_urdf import (
     N_PROXIMAL_SENSORS,
@@ -144,6 +145,7 @@ class SimHand(Hand):
         self._far_sites = np.full((N_SENSORS, 3), 1.0e3)
         self._far_sites[N_FINGER_SENSORS:] = palm_site_positions(world.geometry)
         self.last_close: CloseResult | None = None
+        self.stop_latch = StopLatch()
 
     # -- Hand interface -------------------------------------------------------------------
 
@@ -162,7 +164,16 @@ class SimHand(Hand):
     def open(self) -> None:
         self.world.open_fingers()
 
+    def stop(self) -> None:
+        """Halt the fingers: a running guarded close ends at its next spool step (it raises),
+        and closing or preshaping is refused until `clear_stop()`."""
+        self.stop_latch.set()
+
+    def clear_stop(self) -> None:
+        self.stop_latch.clear()
+
     def preshape(self, angle: float) -> None:
+        self.stop_latch.check("preshape")
         a = float(angle)
         if not (0.0 <= a <= self.cfg.preshape_limit_rad):
             raise ValueError(f"preshape {a} rad is outside 0..{self.cfg.preshape_limit_rad}")
@@ -183,7 +194,9 @@ class SimHand(Hand):
 
     def guarded_close(self) -> Grasp:
         """Close every finger in spool steps until it senses contact, stalls or reaches its
-        limit; report the sensors over threshold at the end."""
+        limit; report the sensors over threshold at the end. A `stop()` from another thread
+        ends it at the next spool step with `StoppedError`, the fingers where they were."""
+        self.stop_latch.check("guarded close")
         cfg, w = self.cfg, self.world
         rng = self._grasp_rng()
         thr = cfg.contact_threshold
@@ -220,6 +233,7 @@ class SimHand(Hand):
                 active[f], reasons[f] = False, STOP_LIMIT
 
         while active.any():
+            self.stop_latch.check("guarded close")  # one control step: a stop acts here
             cap = np.where(np.isnan(target), limit, target)
             new_spool = np.where(
                 active, np.minimum(spool + np.where(fine, fine_inc, step), cap), spool
@@ -307,7 +321,10 @@ class SimHand(Hand):
         # Seeded from what defines the grasp, so it does not depend on earlier grasps.
         w = self.world
         obj = w.object
-        key = np.concatenate([w.wrist_pose.as_array(), [w.preshape_angle], w.proximal, w.distal])
+        pose = w.wrist_pose.as_array()
+        if pose[6] < 0 or (pose[6] == 0 and pose[3:6][np.flatnonzero(pose[3:6])[:1]].sum() < 0):
+            pose[3:] = -pose[3:]  # q and -q are one rotation: one noise stream
+        key = np.concatenate([pose, [w.preshape_angle], w.proximal, w.distal])
         text = f"{self.seed}|{obj.name if obj else ''}|" + ",".join(
             f"{v:.6f}" for v in np.round(key, 6) + 0.0
         )

@@ -1,4 +1,4 @@
-"""PyBullet, imported once with its build banner silenced: `from activetouch.sim.pybullet import pb`."""
+"""PyBullet, imported once with its build banner silenced (`from ...sim.pybullet import pb`)."""
 
 from activetouch.sim import import_pybullet_quietly
 

@@ -1,9 +1,10 @@
 """The twin's world: a PyBullet DIRECT client with a table, one object and the ReFlex hand,
 and `SimArm`, the floating wrist that carries the hand.
 
-Conventions (contracts.md, "sim"): the table top is world z = 0, the table centred at the
-origin. An object's frame has its origin at the object's bounding-box centre, axes parallel
-to the world's; the object stands on the table at (0, 0, half height) and is fixed. Wrist poses
+Conventions: the world is the robot base frame, and the table is the workcell's box (by
+default its top at z = 0, centred at the origin). An object's frame has its origin at the
+object's bounding-box centre, axes parallel to the world's; the object stands on the table at
+the workcell's object x, y and is fixed. Wrist poses
 are of the hand (ReFlex base link) frame expressed in the object frame. With no object on the
 table the object frame is the world frame.
 
@@ -33,10 +34,20 @@ from activetouch.interfaces import (
     N_SENSORS,
     SENSORS_PER_FINGER,
     Arm,
+    JointLimits,
     JointState,
     JointTrajectory,
     Pose,
+    StopLatch,
 )
+from activetouch.planning.motion.floating import (
+    WRIST_JOINTS,
+    floating_limits,
+    pose_to_wrist_joints,
+    wrap_angles,
+    wrist_joints_to_pose,
+)
+from activetouch.sim.devices import PATHS
 from activetouch.sim.pybullet import pb
 from activetouch.sim.reflex_urdf import (
     DISTAL_JOINTS,
@@ -61,14 +72,7 @@ FAR_AWAY = (0.0, 0.0, 1.0e3)  # where the hand goes to drop Bullet's cached cont
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """3x3 rotation of a unit quaternion (x, y, z, w)."""
-    x, y, z, w = (float(v) for v in q)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
+    return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_matrix()
 
 
 def geometry_from_config(cfg: SimConfig) -> ReflexGeometry:
@@ -221,23 +225,36 @@ class SimWorld:
         """World position of the object frame's origin (the world origin with no object)."""
         return np.zeros(3) if self._object is None else self._object.origin.copy()
 
+    @property
+    def support_z(self) -> float:
+        """The table plane in the object frame."""
+        return self.workcell.table_top_z - float(self.object_origin[2])
+
     def place(self, spec: ObjectSpec) -> int:
         """Put a library object on the table (removing any previous one); its body id."""
         from activetouch.sim.objects import spawn_object  # the object library's loader
 
         self.clear()
-        body = spawn_object(self.cid, spec)
-        return self.place_body(body, np.asarray(spec.extents, dtype=np.float64), spec.name)
+        ext = np.asarray(spec.extents, dtype=np.float64)
+        body = spawn_object(self.cid, spec, position=tuple(self.object_centre(ext).tolist()))
+        return self.place_body(body, ext, spec.name)
+
+    def object_centre(self, extents: np.ndarray) -> np.ndarray:
+        """Where an object of `extents` stands: at the workcell's object x, y, on the table."""
+        wc = self.workcell
+        return np.array(
+            [wc.object_xyz[0], wc.object_xyz[1], wc.table_top_z + float(extents[2]) / 2]
+        )
 
     def place_body(self, body: int, extents: np.ndarray, name: str = "") -> int:
         """Adopt `body` (already created in this world's client, fixed, standing on the table
-        centred at (0, 0, extents[2] / 2)) as the object; the world removes it on `clear()`."""
+        at `object_centre(extents)`) as the object; the world removes it on `clear()`."""
         ext = np.asarray(extents, dtype=np.float64).reshape(3)
         if np.any(ext <= 0) or not np.all(np.isfinite(ext)):
             raise ValueError(f"object extents must be positive, got {ext}")
         if self._object is not None and self._object.body != body:
             self.clear()
-        self._object = PlacedObject(body, name, ext, np.array([0.0, 0.0, ext[2] / 2]))
+        self._object = PlacedObject(body, name, ext, self.object_centre(ext))
         self.set_wrist(self._wrist)  # the wrist pose is object-relative: re-pose the hand
         return body
 
@@ -267,7 +284,7 @@ class SimWorld:
             raise ValueError(f"primitive sizes must be positive, got {size!r}")
         self.clear()
         body = pb.createMultiBody(
-            0.0, shape, basePosition=[0.0, 0.0, ext[2] / 2], physicsClientId=c
+            0.0, shape, basePosition=self.object_centre(ext).tolist(), physicsClientId=c
         )
         return self.place_body(body, ext, kind)
 
@@ -400,7 +417,7 @@ class SimWorld:
         """Why the hand cannot be where it is (None if it may): below the table top, or
         overlapping the table or the object deeper than the configured tolerance."""
         tol = self.cfg.wrist_penetration_tol_m
-        low = self.hand_min_z()
+        low = self.hand_min_z() - self.workcell.table_top_z
         if low < -tol:
             return f"the hand reaches {-low * 1000:.1f} mm below the table top"
         self.flush_contacts()
@@ -412,60 +429,59 @@ class SimWorld:
         return None
 
 
-def euler_to_quat(rpy: np.ndarray) -> np.ndarray:
-    """Roll, pitch, yaw (fixed-axis x, y, z, as PyBullet's) to a quaternion x y z w."""
-    return Rotation.from_euler("xyz", np.asarray(rpy, dtype=np.float64)).as_quat()
-
-
-def quat_to_euler(q: np.ndarray) -> np.ndarray:
-    return Rotation.from_quat(np.asarray(q, dtype=np.float64)).as_euler("xyz")
-
-
-WRIST_JOINTS = ("wrist_x", "wrist_y", "wrist_z", "wrist_roll", "wrist_pitch", "wrist_yaw")
-
-
-def wrist_joints_to_pose(q: np.ndarray) -> Pose:
-    q = np.asarray(q, dtype=np.float64).reshape(6)
-    return Pose(q[:3], euler_to_quat(q[3:]))
-
-
-def pose_to_wrist_joints(pose: Pose) -> np.ndarray:
-    return np.concatenate([pose.xyz, quat_to_euler(pose.quat)])
-
-
 def _format_pose(pose: Pose) -> str:
     x, y, z = pose.xyz
     return f"({x:.3f}, {y:.3f}, {z:.3f})"
 
 
 class SimArm(Arm):
-    """A floating wrist: six virtual joints x y z roll pitch yaw of the hand frame in the
-    object frame. Moves teleport (as in the paper's simulation). The twin makes its moves with
-    the fingers open (preshape kept): a teleport carries nothing, and the collision check of a
-    target pose is of the open hand."""
+    """A floating wrist: six joints x y z roll pitch yaw of the hand frame in the world (the
+    robot base frame). With ``path="teleport"`` (the paper's simulation, and the default) the
+    wrist jumps from point to point of a trajectory and only the points are checked; with
+    ``"straight"`` every `execute_step_m` / `execute_step_rad` along the way is. The twin
+    moves with the fingers open (preshape kept): a teleport carries nothing, and the check of
+    a pose is of the open hand. A trajectory outside the workspace is refused before anything
+    moves."""
 
-    joint_names = WRIST_JOINTS
-
-    def __init__(self, world: SimWorld) -> None:
+    def __init__(self, world: SimWorld, path: str = "teleport") -> None:
+        if path not in PATHS:
+            raise ActiveTouchError(f"arm path must be one of {', '.join(PATHS)}, not {path!r}")
         self.world = world
-        self._stopped = False
+        self.path = path
+        self._limits = floating_limits(world.workcell)
+        self.stop_latch = StopLatch()
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return WRIST_JOINTS
+
+    @property
+    def limits(self) -> JointLimits:
+        return self._limits
 
     def connect(self) -> None:
-        self._stopped = False
+        pass
 
     def disconnect(self) -> None:
         pass  # the world owns the client
 
+    def _world_pose(self) -> Pose:
+        pos, quat = self.world.wrist_world()
+        return Pose(pos, quat)
+
     def joint_state(self) -> JointState:
         return JointState(
             names=WRIST_JOINTS,
-            position=pose_to_wrist_joints(self.world.wrist_pose),
+            position=pose_to_wrist_joints(self._world_pose()),
             velocity=np.zeros(6),
             stamp=time.monotonic(),
         )
 
+    def _to_object(self, pose_world: Pose) -> Pose:
+        return Pose(pose_world.xyz - self.world.object_origin, pose_world.quat)
+
     def _try_pose(self, pose: Pose) -> str | None:
-        """Open the fingers, teleport, check; on failure restore everything. The reason."""
+        """Open the fingers, teleport (object frame), check; on failure restore everything."""
         w = self.world
         before = (w.wrist_pose, w.preshape_angle, w.proximal, w.distal)
         w.open_fingers()
@@ -476,15 +492,8 @@ class SimArm(Arm):
             w.set_hand(before[1], before[2], before[3])
         return reason
 
-    def move_wrist(self, pose: Pose) -> None:
-        """Teleport the hand frame to `pose` (object frame). UnreachableError if the open hand
-        there would be under the table or inside the table or the object."""
-        reason = self._try_pose(pose)
-        if reason is not None:
-            raise UnreachableError(f"wrist pose {_format_pose(pose)}: {reason}")
-
     def check_pose(self, pose: Pose) -> str | None:
-        """Why `pose` is unreachable, or None; the hand stays where it is either way."""
+        """Why the wrist could not be at `pose` (object frame), or None; nothing moves."""
         w = self.world
         before = (w.wrist_pose, w.preshape_angle, w.proximal, w.distal)
         reason = self._try_pose(pose)
@@ -493,36 +502,48 @@ class SimArm(Arm):
         return reason
 
     def execute(self, trajectory: JointTrajectory) -> None:
-        """Follow a wrist trajectory, checking collisions every `execute_step_m` /
-        `execute_step_rad` between its points; on a collision the hand stays at the last
-        collision-free sample and UnreachableError names the time."""
+        """Follow a wrist trajectory (see the class); on a collision the hand stays at the last
+        collision-free pose and UnreachableError names the time."""
+        self.stop_latch.check("arm motion")
         q = _trajectory_in_wrist_order(trajectory)
+        bad = self._limits.violations(WRIST_JOINTS, q)
+        if bad:
+            raise UnreachableError(f"wrist trajectory outside the workspace: {'; '.join(bad)}")
         cfg = self.world.cfg
-        self._stopped = False
         times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
-        current = pose_to_wrist_joints(self.world.wrist_pose)
+        current = pose_to_wrist_joints(self._world_pose())
         for i in range(len(q)):
             start = current if i == 0 else q[i - 1]
             delta = q[i] - start
-            delta[3:] = (delta[3:] + np.pi) % (2 * np.pi) - np.pi  # shortest way round
-            n = max(
-                1,
-                int(np.ceil(np.linalg.norm(delta[:3]) / cfg.execute_step_m)),
-                int(np.ceil(np.abs(delta[3:]).max() / cfg.execute_step_rad)),
-            )
+            delta[3:] = wrap_angles(delta[3:])
+            if self.path == "teleport":
+                n = 1
+            else:
+                n = max(
+                    1,
+                    int(np.ceil(np.linalg.norm(delta[:3]) / cfg.execute_step_m)),
+                    int(np.ceil(np.abs(delta[3:]).max() / cfg.execute_step_rad)),
+                )
+            if i == 0 and n == 1 and np.allclose(delta, 0.0, atol=1e-9):
+                continue  # the trajectory starts where the wrist is
             for k in range(1, n + 1):
-                if self._stopped:
-                    return
-                pose = wrist_joints_to_pose(start + delta * (k / n))
+                self.stop_latch.check("arm motion")
+                # The last step lands on the point itself, not on start + delta (rounding):
+                # the twin's noise is keyed by the pose, so a pose must not depend on the path.
+                q_k = q[i] if k == n else start + delta * (k / n)
+                pose = self._to_object(wrist_joints_to_pose(q_k))
                 reason = self._try_pose(pose)
                 if reason is not None:
                     raise UnreachableError(
                         f"wrist trajectory blocked near t = {times[i]:.2f} s at "
-                        f"{_format_pose(pose)}: {reason}"
+                        f"{_format_pose(pose)} (object frame): {reason}"
                     )
 
     def stop(self) -> None:
-        self._stopped = True
+        self.stop_latch.set()
+
+    def clear_stop(self) -> None:
+        self.stop_latch.clear()
 
 
 def _trajectory_in_wrist_order(trajectory: JointTrajectory) -> np.ndarray:

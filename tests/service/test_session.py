@@ -80,18 +80,18 @@ def test_progress_after_every_grasp_and_cancel(trained_home, small_model):
     assert [len(e.top) for e in events] == [3 if lab != NO_LABEL else 0 for lab in res.labels]
 
 
-class FlakyArm:
-    """Wraps the twin's arm; every other requested pose is unreachable."""
+class FlakyWrist:
+    """Wraps the twin's wrist motion; every other requested pose is unreachable."""
 
-    def __init__(self, arm):
-        self.arm = arm
+    def __init__(self, wrist):
+        self.wrist = wrist
         self.calls = 0
 
-    def move_wrist(self, pose: Pose) -> None:
+    def move_to(self, pose: Pose) -> None:
         self.calls += 1
         if self.calls % 2 == 0:
             raise UnreachableError("blocked in this test")
-        self.arm.move_wrist(pose)
+        self.wrist.move_to(pose)
 
 
 def test_unreachable_poses_are_skipped_counted_and_not_retried(trained_home, small_model):
@@ -101,7 +101,7 @@ def test_unreachable_poses_are_skipped_counted_and_not_retried(trained_home, sma
         "random", cfg.planner, small_model.observation, small_model.classifier.kernel()
     )
     with open_twin(lib.get("cup"), cfg.sim, seed=0) as twin:
-        arm = FlakyArm(twin.arm)
+        arm = FlakyWrist(twin.wrist)
         s = RecognitionSession(
             twin.hand,
             arm,
@@ -153,7 +153,7 @@ def test_no_label_until_something_is_felt(trained_home, small_model):
     with open_twin(lib.get("cup"), cfg.sim, seed=0) as twin:
         s = RecognitionSession(
             NumbFirstHand(twin.hand),
-            twin.arm,
+            twin.wrist,
             small_model,
             policy,  # type: ignore[arg-type]
             type(cfg.session)(max_moves=3, confidence=1.1),

@@ -35,13 +35,13 @@ def test_interrupted_collection_resumes_without_repeating(tmp_path):
             raise CrashError
 
     with open_twin(spec, cfg.sim) as twin, pytest.raises(CrashError):
-        collect_object(twin.hand, twin.arm, ds, "sphere", grid, batch=8, on_grasp=crash_after_20)
+        collect_object(twin.hand, twin.wrist, ds, "sphere", grid, batch=8, on_grasp=crash_after_20)
     ds = Dataset.open(tmp_path / "ds")
     saved = ds.done_pose_ids("sphere") | set(ds.attrs("sphere")[SKIPPED_ATTR])
     assert 0 < len(saved) <= 20  # whole batches before the crash are durable
 
     with open_twin(spec, cfg.sim) as twin:
-        stats = collect_object(twin.hand, twin.arm, ds, "sphere", grid, batch=8)
+        stats = collect_object(twin.hand, twin.wrist, ds, "sphere", grid, batch=8)
     assert stats.already_done == len(saved)
     assert stats.grasped + stats.skipped == len(grid) - len(saved)
     final = ds.done_pose_ids("sphere") | set(ds.attrs("sphere")[SKIPPED_ATTR])

@@ -20,6 +20,7 @@ from activetouch.sim.hand import (
     spread_kernel,
 )
 from activetouch.sim.reflex_urdf import coupled_joints
+from activetouch.sim.twin import twin_wrist
 from activetouch.sim.world import SimArm, SimWorld
 
 TOP = np.array([1.0, 0.0, 0.0, 0.0])  # hand +z pointing down
@@ -43,7 +44,7 @@ def rig():
 def grasp_at(arm: SimArm, hand: SimHand, pose: Pose, preshape: float = 0.0) -> Grasp:
     hand.open()
     hand.preshape(preshape)
-    arm.move_wrist(pose)
+    twin_wrist(arm).move_to(pose)
     return hand.guarded_close()
 
 

@@ -26,7 +26,7 @@ def test_imported_obj_is_grasped_at_its_training_poses(tmp_path):
         for pose in grid.poses[::4]:
             twin.hand.open()
             try:
-                twin.arm.move_wrist(Pose.from_array(pose))
+                twin.wrist.move_to(Pose.from_array(pose))
             except UnreachableError:  # over the table: skipped, as in training
                 continue
             contacts.append(twin.hand.guarded_close().n_contacts)

@@ -8,7 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from activetouch.config import SimConfig
-from activetouch.errors import ActiveTouchError, UnreachableError
+from activetouch.errors import ActiveTouchError, StoppedError, UnreachableError
 from activetouch.interfaces import JointTrajectory, Pose
 from activetouch.sim.reflex_urdf import (
     DISTAL_SENSOR_X_GAZEBO,
@@ -21,6 +21,7 @@ from activetouch.sim.reflex_urdf import (
     sensor_positions,
     urdf_file,
 )
+from activetouch.sim.twin import twin_wrist
 from activetouch.sim.world import (
     WRIST_JOINTS,
     SimArm,
@@ -163,7 +164,7 @@ def test_wrist_pose_is_in_the_object_frame(world: SimWorld) -> None:
     world.place_primitive("sphere", 0.05)
     arm = SimArm(world)
     pose = Pose([0.0, 0.0, 0.2], TOP)
-    arm.move_wrist(pose)
+    twin_wrist(arm).move_to(pose)
     pos, _ = world.wrist_world()
     np.testing.assert_allclose(pos, [0, 0, 0.25])
     # The pad (hand z = 0.0896) is below the hand origin, facing the sphere.
@@ -172,7 +173,10 @@ def test_wrist_pose_is_in_the_object_frame(world: SimWorld) -> None:
     js = arm.joint_state()
     assert js.names == WRIST_JOINTS
     np.testing.assert_allclose(
-        wrist_joints_to_pose(js.position).as_array(), pose.as_array(), atol=1e-12
+        # The arm's joints are the hand pose in the world (base) frame, not the object frame.
+        wrist_joints_to_pose(js.position).as_array(),
+        Pose([0.0, 0.0, 0.25], TOP).as_array(),
+        atol=1e-12,
     )
 
 
@@ -187,33 +191,34 @@ def test_wrist_joint_conversions_round_trip() -> None:
 def test_move_wrist_into_the_table_raises_and_leaves_the_hand(world: SimWorld) -> None:
     arm = SimArm(world)
     start = Pose([0.0, 0.0, 0.3], TOP)
-    arm.move_wrist(start)
+    twin_wrist(arm).move_to(start)
     # Palm down, pad 2 cm into the table.
     with pytest.raises(UnreachableError, match="table"):
-        arm.move_wrist(Pose([0.0, 0.0, 0.0896 - 0.02], TOP))
-    np.testing.assert_allclose(world.wrist_pose.as_array(), start.as_array())
+        twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.0896 - 0.02], TOP))
+    np.testing.assert_allclose(world.wrist_pose.as_array(), start.as_array(), atol=1e-12)
     # Entirely under the table.
     with pytest.raises(UnreachableError, match="below the table"):
-        arm.move_wrist(Pose([0.0, 0.0, -0.5], TOP))
+        twin_wrist(arm).move_to(Pose([0.0, 0.0, -0.09], TOP))
     # Just touching is allowed (within the tolerance).
-    arm.move_wrist(Pose([0.0, 0.0, 0.0896 + 0.0074 + 0.0005], TOP))
+    twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.0896 + 0.0074 + 0.0005], TOP))
 
 
 def test_move_wrist_into_the_object_raises(world: SimWorld) -> None:
     world.place_primitive("box", (0.08, 0.08, 0.1))
     arm = SimArm(world)
     with pytest.raises(UnreachableError, match="object"):
-        arm.move_wrist(Pose([0.0, 0.0, 0.05 + 0.0896 - 0.01], TOP))
+        twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.05 + 0.0896 - 0.01], TOP))
     assert arm.check_pose(Pose([0.0, 0.0, 0.05 + 0.0896 + 0.02], TOP)) is None
     assert "object" in arm.check_pose(Pose([0.0, 0.0, 0.05], TOP))
 
 
 def test_execute_follows_and_stops_before_collisions(world: SimWorld) -> None:
     world.place_primitive("box", (0.08, 0.08, 0.1))
-    arm = SimArm(world)
-    arm.move_wrist(Pose([0.0, 0.0, 0.3], TOP))
+    arm = SimArm(world, path="straight")
+    twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.3], TOP))
     names = ("wrist_yaw", "wrist_x", "wrist_y", "wrist_z", "wrist_roll", "wrist_pitch")
-    q0 = pose_to_wrist_joints(world.wrist_pose)
+    q0 = arm.joint_state().position  # the hand in the world: the object stands at z = 0.05
+    np.testing.assert_allclose(q0[:3], [0.0, 0.0, 0.35], atol=1e-9)
     goal = q0.copy()
     goal[0] = 0.1
     reorder = [WRIST_JOINTS.index(n) for n in names]
@@ -231,6 +236,34 @@ def test_execute_follows_and_stops_before_collisions(world: SimWorld) -> None:
         arm.execute(JointTrajectory(("a",), np.zeros(1), np.zeros((1, 1))))
 
 
+def test_execute_refuses_a_trajectory_outside_the_workspace_before_moving(
+    world: SimWorld,
+) -> None:
+    arm = SimArm(world, path="straight")
+    q0 = arm.joint_state().position
+    far = q0.copy()
+    far[0] = 1.0e6  # the probe of a careless client: it used to run 10^8 collision checks
+    with pytest.raises(UnreachableError, match="wrist_x"):
+        arm.execute(JointTrajectory(WRIST_JOINTS, np.array([0.0, 1.0]), np.stack([q0, far])))
+    np.testing.assert_allclose(arm.joint_state().position, q0)
+
+
+def test_a_stop_stays_in_force_until_cleared(world: SimWorld) -> None:
+    arm = SimArm(world)
+    q0 = arm.joint_state().position
+    up = q0.copy()
+    up[2] += 0.1
+    traj = JointTrajectory(WRIST_JOINTS, np.array([0.0, 1.0]), np.stack([q0, up]))
+    arm.stop()
+    for _ in range(2):  # a queued execute does not clear it
+        with pytest.raises(StoppedError):
+            arm.execute(traj)
+    np.testing.assert_allclose(arm.joint_state().position, q0)
+    arm.clear_stop()
+    arm.execute(traj)
+    np.testing.assert_allclose(arm.joint_state().position, up, atol=1e-9)
+
+
 def test_library_object_is_placed_by_its_spawner(world: SimWorld, tmp_path) -> None:
     objects = pytest.importorskip("activetouch.sim.objects")
     lib = objects.ObjectLibrary(tmp_path / "objects")
@@ -240,5 +273,5 @@ def test_library_object_is_placed_by_its_spawner(world: SimWorld, tmp_path) -> N
     np.testing.assert_allclose(world.object_origin, [0, 0, spec.extents[2] / 2])
     arm = SimArm(world)
     with pytest.raises(UnreachableError):
-        arm.move_wrist(Pose([0.0, 0.0, 0.0], TOP))
-    arm.move_wrist(Pose([0.0, 0.0, spec.extents[2] / 2 + 0.0896 + 0.01], TOP))
+        twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.0], TOP))
+    twin_wrist(arm).move_to(Pose([0.0, 0.0, spec.extents[2] / 2 + 0.0896 + 0.01], TOP))

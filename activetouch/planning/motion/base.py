@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from activetouch.config import WorkcellConfig
 from activetouch.interfaces import Pose
 
 
@@ -40,6 +41,11 @@ class Placement:
     def support_z(self, table_top_z: float) -> float:
         """The table plane's height in the object frame (z is shared: the object only yaws)."""
         return float(table_top_z) - float(self.xyz[2])
+
+
+def workcell_placement(workcell: WorkcellConfig) -> Placement:
+    """The object placement a workcell configures (a real robot's, until calibration)."""
+    return Placement(np.asarray(workcell.object_xyz), np.radians(workcell.object_yaw_deg))
 
 
 class WristMotion(abc.ABC):

@@ -26,23 +26,28 @@ def register(sub: argparse._SubParsersAction) -> None:
         "serve",
         help="run the recognition daemon (Zenoh API, docs/api.md)",
         description=(
-            "Run the recognition daemon. With --sim (the default) the PyBullet twin is served "
-            "as the robot's hand and arm nodes and recognitions run on it through Zenoh. "
-            "Stops cleanly on SIGTERM / SIGINT."
+            "Run the recognition daemon. The robot's hand and arm are made from the [hand] and "
+            "[arm] configuration (default: the PyBullet twin) and served as Zenoh nodes; "
+            "recognitions run on them through Zenoh. Stops cleanly on SIGTERM / SIGINT."
         ),
     )
     mode = p.add_mutually_exclusive_group()
     mode.add_argument(
-        "--sim", dest="mode", action="store_const", const="sim", help="the twin (default)"
+        "--sim",
+        dest="mode",
+        action="store_const",
+        const="sim",
+        help="the twin: shorthand for hand.type=twin, arm.type=twin-floating (simulated types "
+        "already configured are kept)",
     )
     mode.add_argument(
         "--hardware",
         dest="mode",
         action="store_const",
         const="hardware",
-        help="the real robot (no drivers in this build yet: only with --role daemon)",
+        help="the real robot: the configured hand and arm types must be real devices",
     )
-    p.set_defaults(mode="sim")
+    p.set_defaults(mode=None)
     p.add_argument(
         "--role",
         choices=("all", "nodes", "daemon"),
@@ -131,6 +136,26 @@ def client_endpoints(args: argparse.Namespace, cfg: Config) -> list[str]:
     return eps
 
 
+def resolve_mode(flag: str | None, cfg: Config) -> str:
+    """``sim`` or ``hardware``: from --sim / --hardware, else from the configured devices.
+    --sim makes the devices the twin's, unless simulated types are configured already."""
+    from activetouch.config import set_devices
+    from activetouch.devices import DEFAULT_ARM, DEFAULT_HAND
+
+    if flag == "sim":
+        raw = {
+            "hand": {"type": DEFAULT_HAND} if not cfg.hand.simulated else None,
+            "arm": {"type": DEFAULT_ARM} if not cfg.arm.simulated else None,
+        }
+        for kind, section in raw.items():
+            if section is not None:
+                set_devices(cfg, {kind: section}, only=(kind,))
+        return "sim"
+    if flag == "hardware":
+        return "hardware"
+    return "sim" if cfg.hand.simulated and cfg.arm.simulated else "hardware"
+
+
 def run_serve(args: argparse.Namespace) -> int:
     from activetouch.service.daemon import DaemonOptions, serve, setup_logging
     from activetouch.service.recognize import model_path
@@ -138,7 +163,7 @@ def run_serve(args: argparse.Namespace) -> int:
     cfg = service_config(args)
     root = paths.data_dir(args.data)
     opts = DaemonOptions(
-        mode=args.mode,
+        mode=resolve_mode(args.mode, cfg),
         role=args.role,
         data=root,
         model_dir=model_path(root, args.model),

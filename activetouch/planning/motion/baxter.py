@@ -1,0 +1,269 @@
+"""`BaxterWristMotion`: an object-frame wrist pose -> IK -> collision-checked path -> ruckig-timed
+`JointTrajectory` -> `Arm.execute`.
+
+A move from the current configuration to a grasp pose has up to three parts:
+
+1. retreat: back off along the hand's -z by `approach_m` (the object is ignored: the hand may
+   still touch it; the table and the robot are not);
+2. transit to the goal's pre-grasp (the goal backed off by `approach_m`), with the object as an
+   obstacle; a straight joint-space segment if it is free, else OMPL RRT-Connect;
+3. approach the goal (object ignored again: the grasp touches it).
+
+Every segment is checked densely (`check_step_rad`, `check_step_m`) and timed by ruckig as a
+phase-synchronised rest-to-rest motion, so the timed motion is the checked one.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from activetouch.errors import UnreachableError
+from activetouch.interfaces import Arm, JointTrajectory, Pose
+from activetouch.planning.motion.base import Placement, WristMotion
+from activetouch.planning.motion.collision import CollisionScene
+from activetouch.planning.motion.ik import IKSolver, SeedTable
+from activetouch.planning.motion.paths import rrt_connect, segment_free
+from activetouch.planning.motion.robot import (
+    ArmModel,
+    BaxterMotionConfig,
+    load_arm,
+    pose_to_se3,
+)
+from activetouch.planning.motion.timing import sample, time_path
+
+# A Baxter workcell (base frame): a 0.75 m-high table in front of the robot (Baxter's base
+# frame is ~0.93 m above the floor), the object ahead of the left arm. Measured in
+# benchmarks/motion.py against other placements: see docs/motion.md.
+BAXTER_TABLE_CENTER = (0.85, 0.2, -0.205)
+BAXTER_TABLE_SIZE = (0.8, 1.4, 0.05)
+BAXTER_OBJECT_XY = (0.6, 0.25)
+SEED_TABLE_SIZE = 20000
+
+
+def table_top(center: np.ndarray | tuple[float, ...], size: np.ndarray | tuple[float, ...]) -> float:
+    return float(center[2]) + float(size[2]) / 2
+
+
+def offset_along_z(target, distance: float):
+    """The SE3 `target` moved by `distance` along its own z axis (negative: backwards)."""
+    import pinocchio as pin
+
+    return target * pin.SE3(np.eye(3), np.array([0.0, 0.0, distance]))
+
+
+@dataclass
+class MotionPlan:
+    """A planned move: waypoints, the timed trajectory and what it cost to find."""
+
+    waypoints: np.ndarray  # (m, 7)
+    trajectory: JointTrajectory
+    duration_s: float
+    planning_s: float
+    used_rrt: bool
+    stages: dict[str, float] = field(default_factory=dict)
+
+
+class BaxterWristMotion(WristMotion):
+    """Moves a Baxter arm's hand frame to object-frame poses, collision-free."""
+
+    def __init__(
+        self,
+        arm: Arm,
+        placement: Placement,
+        table_center: tuple[float, ...] | np.ndarray = BAXTER_TABLE_CENTER,
+        table_size: tuple[float, ...] | np.ndarray = BAXTER_TABLE_SIZE,
+        cfg: BaxterMotionConfig | None = None,
+        model: ArmModel | None = None,
+        object_extents: np.ndarray | None = None,
+        object_hull: np.ndarray | None = None,
+        sample_dt: float = 0.01,
+    ) -> None:
+        self.cfg = cfg or BaxterMotionConfig()
+        self.arm = arm
+        self.model = model or load_arm(self.cfg)
+        if tuple(arm.joint_names) != self.model.joint_names:
+            missing = set(self.model.joint_names) - set(arm.joint_names)
+            if missing:
+                raise UnreachableError(f"the arm lacks joints {sorted(missing)}")
+        self.placement = placement
+        self.scene = CollisionScene(
+            self.model, table_center, table_size, placement, object_hull, object_extents
+        )
+        self.seeds = SeedTable.random(self.model, SEED_TABLE_SIZE, seed=self.cfg.seed)
+        self.ik = IKSolver(
+            self.model, self.seeds, tol=self.cfg.ik_tol, restarts=self.cfg.ik_restarts,
+            seed=self.cfg.seed,
+        )
+        n = self.model.nq
+        self.velocity = self.model.velocity
+        self.acceleration = np.full(n, self.cfg.acceleration)
+        self.jerk = np.full(n, self.cfg.jerk)
+        self.sample_dt = sample_dt
+        self.last_plan: MotionPlan | None = None
+
+    # ---- placement and obstacles -------------------------------------------------------
+
+    def set_placement(self, placement: Placement) -> None:
+        self.placement = placement
+        self.scene.set_object(placement, self.scene.object_hull, self.scene.object_extents)
+
+    def set_object(self, extents: np.ndarray | None = None, hull: np.ndarray | None = None) -> None:
+        """The object's shape (box extents or hull points in the object frame)."""
+        self.scene.set_object(self.placement, hull, extents)
+
+    # ---- planning -----------------------------------------------------------------------
+
+    def current_q(self) -> np.ndarray:
+        st = self.arm.joint_state()
+        index = {n: i for i, n in enumerate(st.names)}
+        return np.array([st.position[index[n]] for n in self.model.joint_names], dtype=np.float64)
+
+    def solve_goal(self, pose_base: Pose, q_near: np.ndarray | None) -> np.ndarray:
+        """IK for a grasp pose (base frame) that is collision-free with the object ignored."""
+        target = pose_to_se3(pose_base)
+        q = self.ik.solve(
+            target, q_near, accept=lambda q: not self.scene.in_collision(q, False),
+            max_solutions=2,
+        )
+        if q is None:
+            st = self.ik.stats
+            if st.converged:
+                raise UnreachableError(
+                    f"collision at the goal: all {st.converged} IK solutions touch something"
+                )
+            raise UnreachableError(f"no IK solution ({st.attempts} starts)")
+        return q
+
+    def reachable(self, poses_object: np.ndarray) -> np.ndarray:
+        """(n,) bool: which object-frame poses (n, 7) have a collision-free goal and pre-grasp.
+        Their solutions join the seed table, so later moves to them solve at once."""
+        ok = np.zeros(len(poses_object), dtype=bool)
+        found = []
+        q_near = self.model.ready
+        for i, p in enumerate(np.atleast_2d(poses_object)):
+            base = self.placement.to_base(Pose.from_array(p))
+            try:
+                q = self.solve_goal(base, q_near)
+                pre = self._pre_grasp(pose_to_se3(base), q)
+            except UnreachableError:
+                continue
+            ok[i] = pre is not None
+            if ok[i]:
+                found.extend([q, pre])
+        if found:
+            self.seeds.add(np.array(found))
+        return ok
+
+    def _pre_grasp(self, target, q_goal: np.ndarray) -> np.ndarray | None:
+        """The goal backed off along -z, collision-free with the object, near `q_goal`, and
+        joined to it by a free straight segment (object ignored)."""
+        for frac in (1.0, 0.5):
+            pre = offset_along_z(target, -self.cfg.approach_m * frac)
+            q = self.ik.solve(pre, q_goal, accept=lambda q: not self.scene.in_collision(q, True))
+            if q is None:
+                continue
+            ok, _ = segment_free(
+                self.scene, q, q_goal, False, self.cfg.check_step_rad, self.cfg.check_step_m
+            )
+            if ok:
+                return q
+        return None
+
+    def plan(self, pose: Pose, q_start: np.ndarray | None = None) -> MotionPlan:
+        """Plan a move of the hand to `pose` (object frame) from `q_start` (default: now)."""
+        import pinocchio as pin
+
+        t0 = time.perf_counter()
+        cfg = self.cfg
+        q0 = self.current_q() if q_start is None else np.asarray(q_start, dtype=np.float64)
+        stages: dict[str, float] = {}
+        base = self.placement.to_base(pose)
+        target = pose_to_se3(base)
+        q_goal = self.solve_goal(base, q0)
+        stages["ik_s"] = time.perf_counter() - t0
+        q_pre = self._pre_grasp(target, q_goal)
+        if q_pre is None:
+            raise UnreachableError("no collision-free pre-grasp pose with a free approach")
+
+        # Retreat from where the hand is now, if possible; else the transit starts here.
+        if self.scene.in_collision(q0, False):
+            raise UnreachableError(
+                f"the start configuration is in collision: {self.scene.colliding_pairs(q0, False)}"
+            )
+        q_ret = q0
+        pin.forwardKinematics(self.model.model, self.ik.data, q0)
+        now = pin.updateFramePlacement(self.model.model, self.ik.data, self.model.hand_frame)
+        back = offset_along_z(now.copy(), -cfg.approach_m)
+        q_r = self.ik.solve(back, q0, accept=lambda q: not self.scene.in_collision(q, True))
+        if q_r is not None and segment_free(
+            self.scene, q0, q_r, False, cfg.check_step_rad, cfg.check_step_m
+        )[0]:
+            q_ret = q_r
+        elif self.scene.in_collision(q0, True):
+            raise UnreachableError("cannot retreat from the current grasp without a collision")
+        stages["ends_s"] = time.perf_counter() - t0
+
+        used_rrt = False
+        ok, _ = segment_free(self.scene, q_ret, q_pre, True, cfg.check_step_rad, cfg.check_step_m)
+        if ok:
+            transit = np.array([q_ret, q_pre])
+        else:
+            remaining = max(0.05, cfg.ompl_time_s)
+            transit = rrt_connect(
+                self.scene, q_ret, q_pre, self.model.lower, self.model.upper, remaining,
+                cfg.check_step_rad, cfg.check_step_m,
+            )
+            used_rrt = True
+            if transit is None:
+                raise UnreachableError(
+                    f"no collision-free path to the pre-grasp within {cfg.ompl_time_s:g} s"
+                )
+        stages["path_s"] = time.perf_counter() - t0
+        waypoints = np.vstack([q0[None], transit, q_goal[None]])
+        waypoints = _dedupe(waypoints)
+        segments = time_path(waypoints, self.velocity, self.acceleration, self.jerk)
+        if segments:
+            times, pos, vel, acc = sample(segments, self.sample_dt)
+        else:  # already there
+            times, pos, vel, acc = (
+                np.array([0.0]), q0[None], np.zeros((1, 7)), np.zeros((1, 7))
+            )
+        duration = float(times[-1])
+        planning = time.perf_counter() - t0
+        traj = JointTrajectory(
+            names=self.model.joint_names,
+            times=times,
+            positions=pos,
+            velocities=vel,
+            meta={
+                "accelerations": acc,
+                "duration_s": duration,
+                "planning_s": planning,
+                "waypoints": waypoints,
+                "rrt": used_rrt,
+            },
+        )
+        plan = MotionPlan(waypoints, traj, duration, planning, used_rrt, stages)
+        self.last_plan = plan
+        return plan
+
+    def move_to(self, pose: Pose) -> None:
+        """Plan, then execute on the arm (`StoppedError` from the arm passes through)."""
+        self.arm.execute(self.plan(pose).trajectory)
+
+
+def _dedupe(wp: np.ndarray, tol: float = 1e-9) -> np.ndarray:
+    keep = [0] + [i for i in range(1, len(wp)) if np.max(np.abs(wp[i] - wp[i - 1])) > tol]
+    return wp[keep]
+
+
+def baxter_placement(object_height: float, xy: tuple[float, float] = BAXTER_OBJECT_XY,
+                     yaw: float = 0.0,
+                     table_center: tuple[float, ...] = BAXTER_TABLE_CENTER,
+                     table_size: tuple[float, ...] = BAXTER_TABLE_SIZE) -> Placement:
+    """The object frame of an object `object_height` tall standing on the Baxter table."""
+    z = table_top(table_center, table_size) + object_height / 2
+    return Placement(np.array([xy[0], xy[1], z]), yaw)
