@@ -1,0 +1,67 @@
+"""A `FingerModel` backed by the PyBullet twin, for the TakkTile emulator: the emulated spool
+angles pose the twin's hand (`SimWorld.set_hand`), and the pressures are the twin's tactile
+model (`SimHand.state()`, with its noise). Thin on purpose: only public SimWorld / SimHand
+calls and `reflex_urdf.coupled_joints`, so the twin can change underneath.
+
+Mechanics kept from the twin at packet resolution (coarser than its own guarded close, which
+re-runs a contact step in substeps): a free finger splits its spool proximal = s / (1 + k),
+distal = k * proximal; once its proximal pads feel something, the proximal holds and the
+distal takes the rest; once its distal pads feel something, the servo stalls `press_rad`
+further on.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class TwinFingers:
+    def __init__(
+        self,
+        world,
+        hand=None,
+        coupling: float | None = None,
+        threshold: float | None = None,
+        press_rad: float = 0.05,
+        spool_limit: float = 3.6,
+    ) -> None:
+        from activetouch.sim.hand import SimHand
+
+        self.world = world
+        self.hand = hand or SimHand(world)
+        cfg = world.cfg
+        self.k = cfg.flexure_coupling if coupling is None else coupling
+        self.threshold = cfg.contact_threshold if threshold is None else threshold
+        self.press_rad, self.spool_limit = press_rad, spool_limit
+        self.blocked = np.zeros(3, dtype=bool)
+        self.hold = np.zeros(3)
+        self.stall = np.full(3, spool_limit)
+
+    def joints(self, spool: np.ndarray, preshape: float) -> tuple[np.ndarray, np.ndarray]:
+        from activetouch.sim.reflex_urdf import coupled_joints
+
+        g = self.world.geometry
+        spool = np.asarray(spool, dtype=np.float64)
+        # Opening past where the proximal was held frees it again.
+        self.blocked &= spool > self.hold * (1 + self.k) - 1e-9
+        return coupled_joints(
+            spool, self.hold, self.blocked, self.k, g.proximal_limit, g.distal_limit
+        )
+
+    def forces(self, spool: np.ndarray, preshape: float) -> np.ndarray:
+        spool = np.asarray(spool, dtype=np.float64)
+        prox, dist = self.joints(spool, preshape)
+        self.world.set_hand(float(preshape), prox, dist)
+        p = np.asarray(self.hand.state().pressures, dtype=np.float64)
+        over = p[:27].reshape(3, 9) > self.threshold
+        for f in range(3):
+            if over[f, :5].any() and not self.blocked[f]:
+                self.blocked[f], self.hold[f] = True, prox[f]
+            if over[f, 5:].any() and self.stall[f] >= self.spool_limit:
+                self.stall[f] = min(self.spool_limit, spool[f] + self.press_rad)
+            if spool[f] < self.stall[f] - 2 * self.press_rad:  # opened again
+                self.stall[f] = self.spool_limit
+        return np.maximum(p, 0.0)
+
+    def stall_spool(self) -> np.ndarray:
+        return self.stall.copy()

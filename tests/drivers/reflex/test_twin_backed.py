@@ -1,0 +1,52 @@
+"""The TakkTile driver against the emulator backed by the PyBullet twin, beside the twin hand
+closing directly at the same pose."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from activetouch.drivers.reflex.emulator_takktile import EmulatorConfig, TakktileEmulator
+from activetouch.drivers.reflex.takktile import ReflexTakktileHand
+
+from .conftest import driver_config, free_udp_port
+
+pytest.importorskip("pybullet")
+
+
+def _world():
+    from activetouch.interfaces import Pose
+    from activetouch.sim.world import SimWorld
+
+    w = SimWorld()
+    w.place_primitive("sphere", 0.05)
+    # Palm down over the sphere, pad 1 cm above its top.
+    w.set_wrist(Pose(np.array([0.0, 0.0, 0.05 + 0.0896 + 0.01]), np.array([1.0, 0, 0, 0])))
+    return w
+
+
+def test_driver_on_twin_backed_emulator_matches_twin():
+    from activetouch.drivers.reflex.twin_fingers import TwinFingers
+    from activetouch.sim.hand import SimHand
+
+    w_direct, w_emu = _world(), _world()
+    try:
+        direct = SimHand(w_direct).guarded_close()
+        sp, cp = free_udp_port(), free_udp_port()
+        cfg = EmulatorConfig(state_to=f"127.0.0.1:{sp}", command_listen=f"127.0.0.1:{cp}")
+        with TakktileEmulator(cfg, TwinFingers(w_emu)):
+            hand = ReflexTakktileHand(driver_config(sp, cp, encoder_zero_rad=[0.0] * 3))
+            hand.connect()
+            try:
+                g = hand.guarded_close()
+            finally:
+                hand.disconnect()
+        assert hand.last_close_reasons == ("contact",) * 3
+        # Same fingers, same links touched; the servo runs on a little past the first
+        # reading, so the driver may see a neighbouring sensor more.
+        assert set(direct.sensor_ids.tolist()) <= set(g.sensor_ids.tolist())
+        assert len(g.sensor_ids) <= len(direct.sensor_ids) + 4
+        assert np.allclose(g.finger_angles, direct.finger_angles, atol=0.05)
+    finally:
+        w_direct.close()
+        w_emu.close()
