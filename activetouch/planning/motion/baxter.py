@@ -43,7 +43,9 @@ BAXTER_OBJECT_XY = (0.6, 0.25)
 SEED_TABLE_SIZE = 20000
 
 
-def table_top(center: np.ndarray | tuple[float, ...], size: np.ndarray | tuple[float, ...]) -> float:
+def table_top(
+    center: np.ndarray | tuple[float, ...], size: np.ndarray | tuple[float, ...]
+) -> float:
     return float(center[2]) + float(size[2]) / 2
 
 
@@ -94,7 +96,10 @@ class BaxterWristMotion(WristMotion):
         )
         self.seeds = SeedTable.random(self.model, SEED_TABLE_SIZE, seed=self.cfg.seed)
         self.ik = IKSolver(
-            self.model, self.seeds, tol=self.cfg.ik_tol, restarts=self.cfg.ik_restarts,
+            self.model,
+            self.seeds,
+            tol=self.cfg.ik_tol,
+            restarts=self.cfg.ik_restarts,
             seed=self.cfg.seed,
         )
         n = self.model.nq
@@ -125,7 +130,9 @@ class BaxterWristMotion(WristMotion):
         """IK for a grasp pose (base frame) that is collision-free with the object ignored."""
         target = pose_to_se3(pose_base)
         q = self.ik.solve(
-            target, q_near, accept=lambda q: not self.scene.in_collision(q, False),
+            target,
+            q_near,
+            accept=lambda q: not self.scene.in_collision(q, False),
             max_solutions=2,
         )
         if q is None:
@@ -198,9 +205,10 @@ class BaxterWristMotion(WristMotion):
         now = pin.updateFramePlacement(self.model.model, self.ik.data, self.model.hand_frame)
         back = offset_along_z(now.copy(), -cfg.approach_m)
         q_r = self.ik.solve(back, q0, accept=lambda q: not self.scene.in_collision(q, True))
-        if q_r is not None and segment_free(
-            self.scene, q0, q_r, False, cfg.check_step_rad, cfg.check_step_m
-        )[0]:
+        if (
+            q_r is not None
+            and segment_free(self.scene, q0, q_r, False, cfg.check_step_rad, cfg.check_step_m)[0]
+        ):
             q_ret = q_r
         elif self.scene.in_collision(q0, True):
             raise UnreachableError("cannot retreat from the current grasp without a collision")
@@ -213,8 +221,14 @@ class BaxterWristMotion(WristMotion):
         else:
             remaining = max(0.05, cfg.ompl_time_s)
             transit = rrt_connect(
-                self.scene, q_ret, q_pre, self.model.lower, self.model.upper, remaining,
-                cfg.check_step_rad, cfg.check_step_m,
+                self.scene,
+                q_ret,
+                q_pre,
+                self.model.lower,
+                self.model.upper,
+                remaining,
+                cfg.check_step_rad,
+                cfg.check_step_m,
             )
             used_rrt = True
             if transit is None:
@@ -228,9 +242,7 @@ class BaxterWristMotion(WristMotion):
         if segments:
             times, pos, vel, acc = sample(segments, self.sample_dt)
         else:  # already there
-            times, pos, vel, acc = (
-                np.array([0.0]), q0[None], np.zeros((1, 7)), np.zeros((1, 7))
-            )
+            times, pos, vel, acc = (np.array([0.0]), q0[None], np.zeros((1, 7)), np.zeros((1, 7)))
         duration = float(times[-1])
         planning = time.perf_counter() - t0
         traj = JointTrajectory(
@@ -260,10 +272,13 @@ def _dedupe(wp: np.ndarray, tol: float = 1e-9) -> np.ndarray:
     return wp[keep]
 
 
-def baxter_placement(object_height: float, xy: tuple[float, float] = BAXTER_OBJECT_XY,
-                     yaw: float = 0.0,
-                     table_center: tuple[float, ...] = BAXTER_TABLE_CENTER,
-                     table_size: tuple[float, ...] = BAXTER_TABLE_SIZE) -> Placement:
+def baxter_placement(
+    object_height: float,
+    xy: tuple[float, float] = BAXTER_OBJECT_XY,
+    yaw: float = 0.0,
+    table_center: tuple[float, ...] = BAXTER_TABLE_CENTER,
+    table_size: tuple[float, ...] = BAXTER_TABLE_SIZE,
+) -> Placement:
     """The object frame of an object `object_height` tall standing on the Baxter table."""
     z = table_top(table_center, table_size) + object_height / 2
     return Placement(np.array([xy[0], xy[1], z]), yaw)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 
 from activetouch.planning.motion.collision import CollisionScene
@@ -59,7 +61,7 @@ def path_free(
     wp = np.atleast_2d(waypoints)
     return all(
         segment_free(scene, a, b, with_object, step_rad, step_m)[0]
-        for a, b in zip(wp[:-1], wp[1:], strict=True)
+        for a, b in itertools.pairwise(wp)
     )
 
 

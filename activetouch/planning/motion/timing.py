@@ -7,6 +7,7 @@ build sends them to a remote service)."""
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -59,7 +60,7 @@ def time_path(
     """Rest-to-rest segments through `waypoints` (m, n); zero-length steps are skipped."""
     wp = np.atleast_2d(np.asarray(waypoints, dtype=np.float64))
     out = []
-    for a, b in zip(wp[:-1], wp[1:], strict=True):
+    for a, b in itertools.pairwise(wp):
         if np.max(np.abs(b - a)) > 1e-9:
             out.append(rest_to_rest(a, b, velocity, acceleration, jerk))
     return out
