@@ -596,6 +596,13 @@ class _RemoteDevice(_RemoteNode):
     def disconnect(self) -> None:
         self.close()
 
+    def __enter__(self) -> Any:
+        self.connect()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.disconnect()
+
 
 class RemoteHand(_RemoteDevice, Hand):
     """A `Hand` served by a `HandNode` elsewhere.

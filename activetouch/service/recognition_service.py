@@ -594,10 +594,6 @@ class RecognitionService:
         if model is None:  # unloaded since admission (cannot happen today; keep the text)
             raise DataError(f"no model: run `activetouch train` ({self.model_error})")
         sid = job.session_id
-        # A new recognition is the operator's go-ahead after a stop (see the module).
-        running.interlock.check("starting")
-        self.hand.clear_stop()
-        self.arm.clear_stop()
         wc = cfg.workcell
         placement = workcell_placement(wc)
         if self.sim is not None:
@@ -614,6 +610,10 @@ class RecognitionService:
                 ),
             )
         support_z = placement.support_z(wc.table_top_z)
+        # A new recognition is the operator's go-ahead after a stop (see the module).
+        running.interlock.check("starting")
+        self.hand.clear_stop()
+        self.arm.clear_stop()
         planner_cfg = dataclasses.replace(
             cfg.planner,
             horizon=req.horizon or cfg.planner.horizon,

@@ -22,10 +22,12 @@ from activetouch.interfaces import (
     Grasp,
     Hand,
     HandState,
+    JointLimits,
     JointState,
     JointTrajectory,
     Pose,
 )
+from activetouch.planning.motion.base import WristMotion
 from activetouch.service.keys import Keys
 from activetouch.service.messages import (
     Empty,
@@ -95,6 +97,12 @@ class FakeHand(Hand):
             preshape=self.angle,
         )
 
+    def stop(self) -> None:
+        self.calls.append(("stop",))
+
+    def clear_stop(self) -> None:
+        self.calls.append(("clear_stop",))
+
     def state(self) -> HandState:
         contact = np.zeros(N_SENSORS, dtype=bool)
         if self.closed:
@@ -108,10 +116,13 @@ class FakeHand(Hand):
         )
 
 
-class FakeArm(Arm):
-    """Arm double: a 'wrist' pose; poses with x > 1 m are unreachable; execute can be stopped."""
+class FakeArm(Arm, WristMotion):
+    """Arm double, and its own wrist motion (recorded as "move_wrist"): poses with x > 1 m are
+    unreachable; execute can be stopped."""
 
     NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
+    joint_names = NAMES
+    limits = JointLimits(np.full(6, -10.0), np.full(6, 10.0), np.ones(6), np.ones(6))
 
     def __init__(self) -> None:
         self.calls: list[tuple] = []
@@ -142,7 +153,7 @@ class FakeArm(Arm):
         finally:
             self.executing.clear()
 
-    def move_wrist(self, pose: Pose) -> None:
+    def move_to(self, pose: Pose) -> None:
         self.calls.append(("move_wrist", pose))
         if pose.xyz[0] > 1.0:
             raise UnreachableError(f"wrist pose at x={pose.xyz[0]:.2f} m is out of reach")
@@ -151,6 +162,9 @@ class FakeArm(Arm):
     def stop(self) -> None:
         self.calls.append(("stop",))
         self.stop_event.set()
+
+    def clear_stop(self) -> None:
+        self.calls.append(("clear_stop",))
 
 
 @pytest.fixture
@@ -187,7 +201,9 @@ def hand_node(hand: FakeHand, node_session: ZenohSession) -> HandNode:
 
 @pytest.fixture
 def arm_node(arm: FakeArm, node_session: ZenohSession) -> ArmNode:
-    return node_session.closing(ArmNode(arm, node_session.session, ROBOT, state_hz=50.0))
+    return node_session.closing(
+        ArmNode(arm, node_session.session, ROBOT, wrist=arm, state_hz=50.0)
+    )
 
 
 @pytest.fixture
@@ -422,6 +438,8 @@ def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_sess
     sim_hand = pytest.importorskip("activetouch.sim.hand")
     from scipy.spatial.transform import Rotation
 
+    from activetouch.sim.twin import twin_wrist
+
     # Hand +z along world +x, towards a 6 cm sphere; contacts on its surface.
     side = Rotation.from_matrix(np.column_stack([[0, 1, 0], [0, 0, 1], [1, 0, 0]])).as_quat()
     pose = Pose(np.array([-(0.06 + 0.0896 + 0.01), 0.0, 0.0]), side)
@@ -431,7 +449,7 @@ def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_sess
         local_world.place_primitive("sphere", 0.06)
         local_arm, local_hand = sim_world.SimArm(local_world), sim_hand.SimHand(local_world)
         local_hand.open()
-        local_arm.move_wrist(pose)
+        twin_wrist(local_arm).move_to(pose)
         want = local_hand.guarded_close()
 
     with sim_world.SimWorld() as world:
@@ -439,7 +457,10 @@ def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_sess
         lock = threading.Lock()  # one pybullet client behind both nodes
         s = node_session.session
         hand_node = HandNode(sim_hand.SimHand(world), s, ROBOT, state_hz=20.0, lock=lock)
-        arm_node = ArmNode(sim_world.SimArm(world), s, ROBOT, state_hz=20.0, lock=lock)
+        sim_arm = sim_world.SimArm(world)
+        arm_node = ArmNode(
+            sim_arm, s, ROBOT, wrist=twin_wrist(sim_arm), state_hz=20.0, lock=lock
+        )
         try:
             c = client_session.session
             with RemoteHand(c, ROBOT, timeout=5.0) as hand, RemoteArm(c, ROBOT, 5.0) as arm:
@@ -448,7 +469,10 @@ def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_sess
                 got = hand.guarded_close()
                 with pytest.raises(UnreachableError):
                     arm.move_wrist(under_table)
-                np.testing.assert_allclose(arm.joint_state().position[:3], pose.xyz, atol=1e-9)
+                # Joints are the hand in the world; the sphere's centre is 6 cm up.
+                np.testing.assert_allclose(
+                    arm.joint_state().position[:3], pose.xyz + np.array([0, 0, 0.06]), atol=1e-9
+                )
                 assert hand.state().contact.sum() > 0
         finally:
             arm_node.close()
@@ -470,7 +494,8 @@ ep = f"tcp/127.0.0.1:{{free_tcp_port()}}"
 node = ZenohSession(ZenohSettings(listen=(ep,)))
 client = ZenohSession(ZenohSettings.client(ep))
 HandNode(FakeHand(), node.session, "exitbot", state_hz=100)
-ArmNode(FakeArm(), node.session, "exitbot", state_hz=100)
+arm = FakeArm()
+ArmNode(arm, node.session, "exitbot", wrist=arm, state_hz=100)
 hand = RemoteHand(client.session, "exitbot")
 hand.connect()
 hand.guarded_close()

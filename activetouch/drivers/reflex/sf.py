@@ -268,16 +268,22 @@ class ReflexSFHand(Hand):
             if r is not None:
                 self._publish(r)
             elif not self._stale and time.monotonic() - self._last_ok > self.cfg.stream_timeout_s:
-                with self._cond:
-                    self._stale = True
-                    self._cond.notify_all()
-                self.warn("stream_lost", "ReFlex SF: servos stopped answering; holding")
-                latest = self._latest
-                if latest is not None:
-                    with contextlib.suppress(StreamLostError, OSError):
-                        self._write_goals(latest.raw_position, motion=False)
+                self._lost()
             next_t += period
             time.sleep(max(0.0, next_t - time.monotonic()))
+
+    def _lost(self) -> None:
+        """Mark the hand stale (once per loss) and command the servos to hold."""
+        with self._cond:
+            if self._stale:
+                return
+            self._stale = True
+            self._cond.notify_all()
+        self.warn("stream_lost", "ReFlex SF: servos stopped answering; holding")
+        latest = self._latest
+        if latest is not None:
+            with contextlib.suppress(StreamLostError, OSError):
+                self._write_goals(latest.raw_position, motion=False)
 
     def _write_goals(self, raw: np.ndarray, motion: bool = True) -> None:
         """Goal positions of all four servos in one SYNC_WRITE; motion writes are refused once
@@ -310,6 +316,12 @@ class ReflexSFHand(Hand):
                     return r
                 left = deadline - time.monotonic()
                 if left <= 0 or self._stale or not self._running:
+                    if left <= 0 and self._running:
+                        self._cond.release()  # _lost takes the bus lock: not under _cond
+                        try:
+                            self._lost()
+                        finally:
+                            self._cond.acquire()
                     raise StreamLostError(
                         f"ReFlex SF: no servo reading within {self.cfg.stream_timeout_s} s"
                     )

@@ -102,6 +102,11 @@ class BaxterWristMotion(WristMotion):
             restarts=self.cfg.ik_restarts,
             seed=self.cfg.seed,
         )
+        # A second solver for the nested pre-grasp IK (the goal's solver is mid-search then);
+        # few restarts: the pre-grasp is near the goal's solution.
+        self.ik_inner = IKSolver(
+            self.model, self.seeds, tol=self.cfg.ik_tol, restarts=3, seed=self.cfg.seed + 1
+        )
         n = self.model.nq
         self.velocity = self.model.velocity
         self.acceleration = np.full(n, self.cfg.acceleration)
@@ -126,23 +131,41 @@ class BaxterWristMotion(WristMotion):
         index = {n: i for i, n in enumerate(st.names)}
         return np.array([st.position[index[n]] for n in self.model.joint_names], dtype=np.float64)
 
-    def solve_goal(self, pose_base: Pose, q_near: np.ndarray | None) -> np.ndarray:
-        """IK for a grasp pose (base frame) that is collision-free with the object ignored."""
+    def solve_goal(
+        self, pose_base: Pose, q_near: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """IK for a grasp pose (base frame): a configuration that is collision-free with the
+        object ignored and has a pre-grasp (`_pre_grasp`); returns (goal, pre-grasp)."""
         target = pose_to_se3(pose_base)
-        q = self.ik.solve(
-            target,
-            q_near,
-            accept=lambda q: not self.scene.in_collision(q, False),
-            max_solutions=2,
-        )
+        why = {"collision": 0, "approach": 0}
+        pre: dict[int, np.ndarray] = {}
+
+        def accept(q: np.ndarray) -> bool:
+            if self.scene.in_collision(q, False):
+                why["collision"] += 1
+                return False
+            p = self._pre_grasp(target, q)
+            if p is None:
+                why["approach"] += 1
+                return False
+            pre[id(q)] = p
+            return True
+
+        q = self.ik.solve(target, q_near, accept=accept, max_solutions=2)
         if q is None:
             st = self.ik.stats
+            if why["approach"]:
+                raise UnreachableError(
+                    f"no collision-free pre-grasp pose with a free approach for the "
+                    f"{why['approach']} collision-free IK solutions "
+                    f"({why['collision']} more touch something)"
+                )
             if st.converged:
                 raise UnreachableError(
                     f"collision at the goal: all {st.converged} IK solutions touch something"
                 )
             raise UnreachableError(f"no IK solution ({st.attempts} starts)")
-        return q
+        return q, pre[id(q)]
 
     def reachable(self, poses_object: np.ndarray) -> np.ndarray:
         """(n,) bool: which object-frame poses (n, 7) have a collision-free goal and pre-grasp.
@@ -153,13 +176,11 @@ class BaxterWristMotion(WristMotion):
         for i, p in enumerate(np.atleast_2d(poses_object)):
             base = self.placement.to_base(Pose.from_array(p))
             try:
-                q = self.solve_goal(base, q_near)
-                pre = self._pre_grasp(pose_to_se3(base), q)
+                q, pre = self.solve_goal(base, q_near)
             except UnreachableError:
                 continue
-            ok[i] = pre is not None
-            if ok[i]:
-                found.extend([q, pre])
+            ok[i] = True
+            found.extend([q, pre])
         if found:
             self.seeds.add(np.array(found))
         return ok
@@ -167,15 +188,21 @@ class BaxterWristMotion(WristMotion):
     def _pre_grasp(self, target, q_goal: np.ndarray) -> np.ndarray | None:
         """The goal backed off along -z, collision-free with the object, near `q_goal`, and
         joined to it by a free straight segment (object ignored)."""
-        for frac in (1.0, 0.5):
-            pre = offset_along_z(target, -self.cfg.approach_m * frac)
-            q = self.ik.solve(pre, q_goal, accept=lambda q: not self.scene.in_collision(q, True))
-            if q is None:
-                continue
-            ok, _ = segment_free(
-                self.scene, q, q_goal, False, self.cfg.check_step_rad, self.cfg.check_step_m
+        cfg = self.cfg
+
+        def accept(q: np.ndarray) -> bool:
+            return (
+                not self.scene.in_collision(q, True)
+                and segment_free(
+                    self.scene, q, q_goal, False, cfg.check_step_rad, cfg.check_step_m
+                )[0]
             )
-            if ok:
+
+        for frac in (1.0, 0.5):
+            pre = offset_along_z(target, -cfg.approach_m * frac)
+            ik = self.ik_inner
+            q = ik.solve(pre, q_goal, accept=accept)
+            if q is not None:
                 return q
         return None
 
@@ -188,12 +215,8 @@ class BaxterWristMotion(WristMotion):
         q0 = self.current_q() if q_start is None else np.asarray(q_start, dtype=np.float64)
         stages: dict[str, float] = {}
         base = self.placement.to_base(pose)
-        target = pose_to_se3(base)
-        q_goal = self.solve_goal(base, q0)
+        q_goal, q_pre = self.solve_goal(base, q0)
         stages["ik_s"] = time.perf_counter() - t0
-        q_pre = self._pre_grasp(target, q_goal)
-        if q_pre is None:
-            raise UnreachableError("no collision-free pre-grasp pose with a free approach")
 
         # Retreat from where the hand is now, if possible; else the transit starts here.
         if self.scene.in_collision(q0, False):
