@@ -109,7 +109,10 @@ def test_independent_packets_and_open_command_bytes(board):
 def test_guarded_close_on_emulator(hand, emulator):
     g = hand.guarded_close()
     assert hand.last_close_reasons == ("contact", "contact", "limit")
-    assert set(g.sensor_ids.tolist()) >= {2, 3, 11, 12}
+    # Each finger stops at its first reading over threshold: with noise, one or both of its
+    # two pressed pads are over it then.
+    ids = set(g.sensor_ids.tolist())
+    assert ids & {2, 3} and ids & {11, 12} and ids <= {2, 3, 11, 12}
     assert not (set(g.sensor_ids.tolist()) & set(range(18, 27)))  # the thumb touched nothing
     assert g.xyz.shape == (g.n_contacts, 3)
     assert np.all(g.pressures > 20)
@@ -263,7 +266,8 @@ def test_faults_five_percent_loss_and_friends(hand, emulator):
     f.loss = f.duplicate = f.reorder = f.corrupt = f.truncate = 0.05
     g = hand.guarded_close()
     assert hand.last_close_reasons[:2] == ("contact", "contact")
-    assert {2, 3, 11, 12} <= set(g.sensor_ids.tolist())
+    ids = set(g.sensor_ids.tolist())
+    assert ids & {2, 3} and ids & {11, 12}
     stats = hand.stats()
     assert stats["duplicate_or_old"] > 0
     assert stats.get("refused_length", 0) > 0
