@@ -151,7 +151,7 @@ def main() -> None:
             moves += 1
             robot_s.append(plan.duration_s)
             rrt += plan.used_rrt
-            colliding += _collides(wm, plan)
+            colliding += _collides(scene, plan)
     out = {
         "model_load_s": load_s,
         "ik_targets": len(targets),
@@ -188,13 +188,13 @@ def _pose(p: np.ndarray):
     return Pose.from_array(p)
 
 
-def _collides(wm: BaxterWristMotion, plan) -> bool:
-    """Re-check an executed trajectory at 1 kHz (robot, hand, table; not the object, which the
-    approach must touch)."""
+def _collides(scene: CollisionScene, plan) -> bool:
+    """Re-check an executed trajectory at 1 kHz with no clearance (robot, hand, table; not the
+    object, which the approach must touch)."""
     segs = plan.trajectory
     times = np.arange(0.0, float(segs.times[-1]), 0.001)
     pos = np.array([np.interp(times, segs.times, segs.positions[:, j]) for j in range(7)]).T
-    return any(wm.scene.in_collision(q, False) for q in pos)
+    return any(scene.in_collision(q, False) for q in pos)
 
 
 if __name__ == "__main__":

@@ -92,7 +92,13 @@ class BaxterWristMotion(WristMotion):
                 raise UnreachableError(f"the arm lacks joints {sorted(missing)}")
         self.placement = placement
         self.scene = CollisionScene(
-            self.model, table_center, table_size, placement, object_hull, object_extents
+            self.model,
+            table_center,
+            table_size,
+            placement,
+            object_hull,
+            object_extents,
+            clearance_m=self.cfg.clearance_m,
         )
         self.seeds = SeedTable.random(self.model, SEED_TABLE_SIZE, seed=self.cfg.seed)
         self.ik = IKSolver(

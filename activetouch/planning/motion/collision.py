@@ -31,7 +31,8 @@ def object_geometry(hull_points: np.ndarray | None, extents: np.ndarray | None):
 
 
 class CollisionScene:
-    """Arm + hand + table + object; `in_collision(q)` in tens of microseconds."""
+    """Arm + hand + table + object; `in_collision(q)` in tens of microseconds. Pairs closer
+    than `clearance_m` count as touching (a margin for what lies between checked samples)."""
 
     def __init__(
         self,
@@ -41,8 +42,10 @@ class CollisionScene:
         placement: Placement | None = None,
         object_hull: np.ndarray | None = None,
         object_extents: np.ndarray | None = None,
+        clearance_m: float = 0.0,
     ) -> None:
         self.arm = arm
+        self.clearance_m = float(clearance_m)
         self.data = arm.model.createData()
         self.table_center = np.asarray(table_center, dtype=np.float64).reshape(3)
         self.table_size = np.asarray(table_size, dtype=np.float64).reshape(3)
@@ -90,6 +93,8 @@ class CollisionScene:
             self.object_pairs = list(range(first, len(geom.collisionPairs)))
         self.geom = geom
         self.gdata = pin.GeometryData(geom)
+        for req in self.gdata.collisionRequests:  # pairs closer than this count as touching
+            req.security_margin = self.clearance_m
         self.manager = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
             self.arm.model, geom, self.gdata
         )

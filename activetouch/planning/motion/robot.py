@@ -66,6 +66,8 @@ class BaxterMotionConfig:
     # Dense checks of timed trajectories: no more hand travel / joint motion between samples.
     check_step_m: float = 0.01
     check_step_rad: float = 0.02
+    # Planned motions keep this clearance (the checks between samples see no thinner contact).
+    clearance_m: float = 0.005
     # OMPL RRT-Connect where straight joint paths collide.
     ompl_time_s: float = 1.0
     # IK.
