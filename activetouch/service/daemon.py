@@ -119,17 +119,15 @@ class DaemonOptions:
         check_service_config(self.cfg.service)
         if self.role != "daemon":
             hand, arm = self.cfg.hand, self.cfg.arm
-            if hand.simulated != arm.simulated:
+            simulated = hand.simulated and arm.simulated
+            if self.mode == "sim" and not simulated:
                 raise ConfigError(
-                    f"hand type {hand.type!r} and arm type {arm.type!r}: one is simulated, the "
-                    "other is not; a robot is either simulated or real"
+                    f"--sim runs simulated devices, not hand {hand.type!r} with arm {arm.type!r}"
                 )
-            if (self.mode == "sim") != hand.simulated:
+            if self.mode == "hardware" and simulated:
                 raise ConfigError(
                     "--hardware needs real devices: set hand.type (reflex-takktile | "
-                    "reflex-sf) and arm.type (baxter)"
-                    if self.mode == "hardware"
-                    else f"--sim runs simulated devices, not {hand.type!r} and {arm.type!r}"
+                    "reflex-sf) and arm.type (baxter); a real hand may ride a fake arm"
                 )
 
 

@@ -831,7 +831,7 @@ class DeviceNodes:
                     lock=lock,
                 )
             )
-            if devices.ctx.place is not None:
+            if devices.simulated and devices.ctx.place is not None:
                 self.nodes.append(PlaceNode(devices.ctx.place, session, robot, lock=lock))
         except Exception:
             self.close()

@@ -13,8 +13,7 @@ from activetouch.service.recognize import recognize_in_twin
 from activetouch.service.session import NO_LABEL, RecognitionSession, display_label
 from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
-
-from .conftest import SMALL_OBJECTS, small_config
+from tests.conftest import SMALL_OBJECTS, small_config
 
 
 def _run(home, model, obj="cup", policy="tree", seed=0, **kw):
@@ -166,3 +165,108 @@ def test_no_label_until_something_is_felt(trained_home, small_model):
     assert res.probabilities[0] == pytest.approx([1 / 3] * 3)
     assert res.labels[1] != NO_LABEL or res.labels[2] != NO_LABEL
     assert display_label(NO_LABEL) != NO_LABEL
+
+
+class RecordingHand:
+    """Wraps a hand; records preshapes and grasps in order, and can add one contact."""
+
+    def __init__(self, hand, extra_object_point=None):
+        self.hand = hand
+        self.calls: list[tuple] = []
+        self.extra = extra_object_point  # an object-frame point to report as a contact
+        self.wrist = None
+
+    def __getattr__(self, name):
+        return getattr(self.hand, name)
+
+    def preshape(self, angle):
+        self.calls.append(("preshape", angle))
+        self.hand.preshape(angle)
+
+    def guarded_close(self):
+        self.calls.append(("close",))
+        g = self.hand.guarded_close()
+        if self.extra is None:
+            return g
+        from activetouch.planning.motion.floating import wrist_joints_to_pose
+
+        # The extra point, in the hand frame at the current wrist pose.
+        pose = self.wrist.placement.to_object(
+            wrist_joints_to_pose(self.wrist.arm.joint_state().position)
+        )
+        from scipy.spatial.transform import Rotation
+
+        p = Rotation.from_quat(pose.quat).inv().apply(self.extra - pose.xyz)
+        return Grasp(
+            np.append(g.sensor_ids, 27),
+            np.vstack([g.xyz, p]),
+            np.append(g.pressures, 99.0),
+            g.finger_angles,
+            g.preshape,
+        )
+
+
+def _session_on_fakes(home, model, hand_wrap, max_moves=3):
+    from activetouch.config import load_config
+    from activetouch.devices import make_devices
+    from activetouch.planning.motion.base import workcell_placement
+    from activetouch.service.messages import SimPlaceRequest
+
+    cfg = load_config(None, ["hand.type=fake", "arm.type=fake"])
+    devices = make_devices(cfg, home)
+    devices.ctx.place(SimPlaceRequest(object="cup"))
+    devices.wrist.set_placement(devices.placement())
+    hand = hand_wrap(devices.hand)
+    hand.wrist = devices.wrist
+    policy = make_policy("random", cfg.planner, model.observation, model.classifier.kernel())
+    placement = devices.placement()
+    assert placement.xyz[2] != workcell_placement(cfg.workcell).xyz[2]  # the cup stands
+    s = RecognitionSession(
+        hand,
+        devices.wrist,
+        model,
+        policy,  # type: ignore[arg-type]
+        type(cfg.session)(max_moves=max_moves, confidence=1.1),
+        np.random.default_rng(0),
+        support_z=placement.support_z(cfg.workcell.table_top_z),
+    )
+    return s.run(), hand
+
+
+def test_the_session_sets_the_training_preshape_before_each_grasp(trained_home, small_model):
+    model = small_model
+    model.config.setdefault("grid", {})
+    saved = model.config["grid"].get("preshape", 0.0)
+    model.config["grid"]["preshape"] = 0.8  # as if training had grasped spherically
+    try:
+        res, hand = _session_on_fakes(trained_home, model, RecordingHand)
+    finally:
+        model.config["grid"]["preshape"] = saved
+    assert res.moves == 3
+    closes = [i for i, c in enumerate(hand.calls) if c[0] == "close"]
+    assert len(closes) == 3
+    for i in closes:  # right before every close: the training preshape
+        assert hand.calls[i - 1] == ("preshape", 0.8)
+
+
+def test_table_contacts_are_dropped_on_a_non_twin_device(trained_home, small_model):
+    """The fake devices have no table of their own: the table plane comes from the workcell,
+    and a contact reported on it never reaches the histogram."""
+    from activetouch.config import load_config
+
+    top = load_config().workcell.table_top_z
+    plain, hand = _session_on_fakes(trained_home, small_model, RecordingHand, 2)
+    half = hand.wrist.placement.xyz[2] - top  # the cup stands on the table: half its height
+
+    def adding(z_above_table):
+        point = np.array([0.05, 0.0, -half + z_above_table])  # object frame
+        return lambda h: RecordingHand(h, extra_object_point=point)
+
+    on_table, _ = _session_on_fakes(trained_home, small_model, adding(0.001), 2)
+    assert on_table.pose_ids == plain.pose_ids
+    for a, b in zip(on_table.contacts, plain.contacts, strict=True):
+        np.testing.assert_allclose(a, b)
+    np.testing.assert_allclose(on_table.counts, plain.counts)
+    # 3 cm above the table it is the object's: kept (so the test can tell the difference).
+    above, _ = _session_on_fakes(trained_home, small_model, adding(0.03), 2)
+    assert sum(map(len, above.contacts)) == sum(map(len, plain.contacts)) + 2

@@ -14,8 +14,7 @@ from activetouch.service.collect import SKIPPED_ATTR, collect_object
 from activetouch.service.training import collect, dataset_meta, fit_and_save, grid_pose_ids
 from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
-
-from .conftest import small_config
+from tests.conftest import small_config
 
 
 class CrashError(Exception):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import time
 
 import numpy as np
 import pytest
@@ -342,3 +343,35 @@ def test_bench_main_writes_its_figures(tmp_path) -> None:
     )
     # Enclosing a sphere touches it with every finger: every grasp gives triangles.
     assert grid["grasps_with_3plus_contacts"] == 1.0 and grid["mean_fingers_touching"] > 2.5
+
+
+def test_stop_ends_a_running_guarded_close_within_one_step(rig) -> None:
+    """From another thread, as the hand node's stop does: the close raises at its next spool
+    step, the fingers stay where they were, and closing is refused until the stop is cleared."""
+    import threading
+
+    from activetouch.errors import StoppedError
+
+    w, arm, hand = rig
+    w.place_primitive("sphere", 0.06)
+    twin_wrist(arm).move_to(Pose([-(0.06 + PAD + 0.01), 0, 0], SIDE))
+    steps: list[np.ndarray] = []
+    real_set_hand = w.set_hand
+
+    def counting_set_hand(preshape, proximal, distal):
+        steps.append(np.asarray(proximal).copy())
+        if len(steps) == 3:  # mid-close: the operator hits stop
+            threading.Thread(target=hand.stop).start()
+            time.sleep(0.05)  # the stop lands before the next step
+        real_set_hand(preshape, proximal, distal)
+
+    w.set_hand = counting_set_hand
+    with pytest.raises(StoppedError, match="guarded close"):
+        hand.guarded_close()
+    assert len(steps) == 3  # not one spool step after the stop
+    w.set_hand = real_set_hand
+    with pytest.raises(StoppedError):
+        hand.guarded_close()
+    hand.open()  # releasing stays allowed
+    hand.clear_stop()
+    assert hand.guarded_close().n_contacts >= 3

@@ -153,6 +153,7 @@ def resolve_mode(flag: str | None, cfg: Config) -> str:
         return "sim"
     if flag == "hardware":
         return "hardware"
+    # A real hand on a fake arm (a bench test of the hand) is a real robot: no placing.
     return "sim" if cfg.hand.simulated and cfg.arm.simulated else "hardware"
 
 

@@ -1,0 +1,95 @@
+"""The recognition service on the in-memory fake devices, in this process: the e-stop reaches
+a grasp that is running, and the devices stay stopped until the next recognition."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from activetouch import paths
+from activetouch.config import load_config
+from activetouch.service.client import RecognitionAbortedError, open_client
+from activetouch.service.commands.serve import resolve_mode
+from activetouch.service.daemon import Daemon, DaemonOptions
+from activetouch.service.messages import RecognizeRequest
+from activetouch.service.zenoh_session import free_tcp_port
+
+ROBOT = "fakebot"
+
+
+@pytest.fixture
+def fake_daemon(trained_home: Path):
+    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    cfg = load_config(
+        None,
+        [
+            "hand.type=fake",
+            "hand.close_s=5",  # a slow grasp: the e-stop must not wait for its end
+            "arm.type=fake",
+            f"service.robot={ROBOT}",
+            f'service.listen=["{ep}"]',
+        ],
+    )
+    opts = DaemonOptions(
+        mode=resolve_mode(None, cfg),
+        role="all",
+        data=trained_home,
+        model_dir=paths.default_model(trained_home),
+        cfg=cfg,
+    )
+    daemon = Daemon(opts)
+    daemon.start()
+    try:
+        yield daemon, ep
+    finally:
+        daemon.close()
+
+
+def test_estop_reaches_the_hand_during_a_grasp(fake_daemon) -> None:
+    daemon, ep = fake_daemon
+    hand = daemon.devices.hand
+    with open_client([ep], ROBOT, timeout=10.0) as client:
+        out: dict = {}
+
+        def run() -> None:
+            req = RecognizeRequest(policy="tree", max_moves=3, seed=1, object="cup")
+            try:
+                out["result"] = client.recognize(req, timeout=60.0)
+            except Exception as e:
+                out["error"] = e
+            out["t"] = time.monotonic()
+
+        t = threading.Thread(target=run)
+        t.start()
+        deadline = time.monotonic() + 10.0
+        while not hand.stop_latch.is_set and time.monotonic() < deadline:
+            st = client.status()
+            if st.session is not None and hand.closes == 0 and st.session.move == 0:
+                time.sleep(0.3)  # inside the first (5 s) grasp
+                break
+            time.sleep(0.02)
+        t_stop = time.monotonic()
+        res = client.estop("test")
+        t.join(10.0)
+        assert not t.is_alive()
+    assert res.arm_stopped and res.hand_opened
+    assert isinstance(out.get("error"), RecognitionAbortedError), out
+    assert out["t"] - t_stop < 1.0  # not the 4.7 s left of the grasp
+    assert hand.closes == 0  # the grasp never completed
+    assert hand.stop_latch.is_set and daemon.devices.arm.stop_latch.is_set  # in force
+
+
+def test_the_next_recognition_clears_the_stop(fake_daemon) -> None:
+    daemon, ep = fake_daemon
+    daemon.devices.hand.cfg.close_s = 0.0
+    with open_client([ep], ROBOT, timeout=10.0) as client:
+        client.estop("before")
+        assert daemon.devices.hand.stop_latch.is_set
+        res = client.recognize(
+            RecognizeRequest(policy="random", max_moves=2, seed=0, object="cup"), timeout=60.0
+        )
+    assert res.moves == 2
+    assert not daemon.devices.hand.stop_latch.is_set
