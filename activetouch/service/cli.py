@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "activetouch.service.commands.recognize",
     "activetouch.service.commands.eval",
     "activetouch.service.commands.serve",
+    "activetouch.service.commands.emulate",
 )
 
 
