@@ -459,7 +459,8 @@ def _step_pmax(kern: tuple, hist: np.ndarray, S: np.ndarray, o: int, last: float
     return _pmax(_proba_scores(kern, hist, S))
 
 
-@njit(cache=True)
+# nogil: a long search must not freeze the daemon's other threads (e-stop, status, signals).
+@njit(cache=True, nogil=True)
 def _run_simulations(
     m: tuple,
     kern: tuple,
@@ -626,7 +627,7 @@ def _run_simulations(
     return n_nodes, n_recs[0]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _extract_path(horizon: int, nodes: tuple, recs: tuple, out_recs: np.ndarray) -> int:
     """Max-reward root-to-leaf path: edge records into `out_recs`; returns its length."""
     _np, _nd, _nc, _ni, node_sibling, node_first, _ns, node_vis, _nf = nodes
