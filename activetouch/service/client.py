@@ -159,6 +159,10 @@ class DaemonClient(_RemoteNode):
                         on_progress(item[1])
                     continue
                 if isinstance(item, zenoh.Reply):
+                    # Zenoh's own error (its query timeout): not a Reply to decode.
+                    failure = self._zenoh_failure("recognize", self.keys.recognize, item, timeout)
+                    if failure is not None:
+                        raise failure
                     # Progress published before the reply may still be queued: keep
                     # draining until the get is done, then answer.
                     reply = decode(item.result.payload.to_bytes(), Reply[RecognizeResult])

@@ -16,6 +16,7 @@ Value types mirror `activetouch.interfaces` (``PoseMsg`` <-> ``Pose`` ...); the 
 
 from __future__ import annotations
 
+import json
 import re
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
@@ -78,11 +79,28 @@ PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
 NonNegFloat = Annotated[float, msgspec.Meta(ge=0.0)]
 Probability = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 Name = Annotated[str, msgspec.Meta(min_length=1, max_length=200)]
+# Free text (reasons, details, error texts): long enough for any real message, short enough
+# that a hostile peer cannot make us log or echo megabytes (issue 16, finding 8).
+Text = Annotated[str, msgspec.Meta(max_length=1000)]
+_MAX_ERROR = 4000
+ErrorText = Annotated[str, msgspec.Meta(max_length=_MAX_ERROR)]
+PathText = Annotated[str, msgspec.Meta(max_length=4096)]
+Label = Annotated[str, msgspec.Meta(max_length=200)]
 Pressures38 = Annotated[list[float], msgspec.Meta(min_length=N_SENSORS, max_length=N_SENSORS)]
 Contacts38 = Annotated[list[bool], msgspec.Meta(min_length=N_SENSORS, max_length=N_SENSORS)]
 FingerAngles = Annotated[list[float], msgspec.Meta(min_length=N_FINGERS, max_length=N_FINGERS)]
 Policy = Literal["tree", "greedy", "random"]
-LabelProb = tuple[str, Probability]
+
+# Upper bounds of RecognizeRequest, checked at admission (issue 16, finding 2): unbounded
+# values froze the daemon (3e6 simulations held the planner for a minute) or failed only
+# after a grasp (1e10 simulations, horizon >= 2**63). Each covers the configured defaults
+# (planner.simulations 200, planner.horizon 5, session.max_moves 20) many times over.
+MAX_SIMULATIONS = 20_000
+MAX_HORIZON = 50
+MAX_MOVES = 1_000
+MAX_SEED = 2**63 - 1  # numpy / int64 seeds
+Seed = Annotated[int, msgspec.Meta(ge=0, le=MAX_SEED)]
+LabelProb = tuple[Label, Probability]
 
 
 class Message(msgspec.Struct, forbid_unknown_fields=True):
@@ -214,9 +232,9 @@ class Reply(Message, Generic[T], kw_only=True):
 
     ok: bool
     result: T | None = None
-    error: str | None = None
-    error_type: str | None = None
-    error_bases: list[str] = []
+    error: ErrorText | None = None
+    error_type: Label | None = None
+    error_bases: Annotated[list[Label], msgspec.Meta(max_length=32)] = []
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -236,9 +254,12 @@ class Reply(Message, Generic[T], kw_only=True):
             for c in type(exc).__mro__[1:]
             if issubclass(c, Exception) and c not in (Exception, BaseException)
         ]
+        text = str(exc) or type(exc).__name__
+        if len(text) > _MAX_ERROR:  # stay decodable by the peer (ErrorText)
+            text = text[: _MAX_ERROR - 20] + " ... (truncated)"
         return cls(
             ok=False,
-            error=str(exc) or type(exc).__name__,
+            error=text,
             error_type=type(exc).__name__,
             error_bases=bases,
         )
@@ -252,11 +273,15 @@ class RecognizeRequest(Message, kw_only=True):
     (simulation only; the real robot grasps whatever is on the table)."""
 
     policy: Policy
-    max_moves: PositiveInt
-    seed: NonNegInt | None = None  # None: the daemon draws one (and reports it)
+    # Grasps, the initial one included: 1 ... MAX_MOVES (1000).
+    max_moves: Annotated[int, msgspec.Meta(ge=1, le=MAX_MOVES)]
+    # 0 ... MAX_SEED (2**63 - 1); None: the daemon draws one (and reports it).
+    seed: Seed | None = None
     object: Name | None = None
-    horizon: PositiveInt | None = None  # None: the configured planner horizon
-    simulations: PositiveInt | None = None  # None: the configured number of simulations
+    # Planning depth, 1 ... MAX_HORIZON (50); None: the configured planner horizon.
+    horizon: Annotated[int, msgspec.Meta(ge=1, le=MAX_HORIZON)] | None = None
+    # Simulations per plan, 1 ... MAX_SIMULATIONS (20000); None: the configured number.
+    simulations: Annotated[int, msgspec.Meta(ge=1, le=MAX_SIMULATIONS)] | None = None
     # Chosen by the client so it can pick its own progress samples out; None: the daemon
     # makes one. Reported back in every Progress and in the result.
     session_id: Name | None = None
@@ -279,17 +304,17 @@ class Progress(Message, kw_only=True):
 
 class RecognizeResult(Message, kw_only=True):
     session_id: Name
-    label: str
+    label: Label
     probability: Probability
-    labels: list[str]  # top label after each grasp (index 0: the initial grasp)
+    labels: list[Label]  # top label after each grasp (index 0: the initial grasp)
     moves: NonNegInt  # grasps made, the initial one included (= len(labels))
     skipped: NonNegInt = 0  # planned poses that could not be reached
     planning_s: NonNegFloat = 0.0  # total planning time
     elapsed_s: NonNegFloat = 0.0  # request to result
     policy: Policy = "tree"
-    seed: NonNegInt | None = None
-    object: str | None = None
-    stop_reason: str = ""  # confident | budget | exhausted | cancelled | skips
+    seed: Seed | None = None
+    object: Label | None = None
+    stop_reason: Label = ""  # confident | budget | exhausted | cancelled | skips
     pose_ids: list[NonNegInt] = []  # the executed grasps' poses, in order
 
 
@@ -299,22 +324,22 @@ class CancelRequest(Message, kw_only=True):
 
 class CancelResult(Message, kw_only=True):
     cancelled: bool
-    session_id: str | None = None
+    session_id: Label | None = None
 
 
 class EStopRequest(Message, kw_only=True):
-    reason: str = ""
+    reason: Text = ""
 
 
 class EStopResult(Message, kw_only=True):
     arm_stopped: bool
     hand_opened: bool
-    errors: list[str] = []
+    errors: Annotated[list[ErrorText], msgspec.Meta(max_length=32)] = []
 
 
 class NodeHealth(Message, kw_only=True):
     alive: bool
-    detail: str = ""
+    detail: Text = ""
 
 
 class SessionSummary(Message, kw_only=True):
@@ -322,7 +347,7 @@ class SessionSummary(Message, kw_only=True):
     policy: Policy
     max_moves: PositiveInt
     move: NonNegInt = 0
-    object: str | None = None
+    object: Label | None = None
     started: float = 0.0  # wall clock, Unix seconds
 
 
@@ -330,11 +355,11 @@ class Status(Message, kw_only=True):
     robot: Name
     nodes: dict[str, NodeHealth]
     model_loaded: bool
-    model: str | None = None  # model name / path / checksum
+    model: PathText | None = None  # model name / path / checksum
     session: SessionSummary | None = None  # the recognition in progress, if any
     uptime_s: NonNegFloat = 0.0
-    mode: str = ""  # sim | hardware
-    model_error: str | None = None  # why no model is loaded
+    mode: Label = ""  # sim | hardware
+    model_error: ErrorText | None = None  # why no model is loaded
     queued: NonNegInt = 0  # recognitions waiting behind the current one
 
 
@@ -343,11 +368,11 @@ class SimPlaceRequest(Message, kw_only=True):
     (so a recognition repeats exactly for a seed)."""
 
     object: Name
-    seed: NonNegInt | None = None
+    seed: Seed | None = None
 
 
 class SimPlaceResult(Message, kw_only=True):
-    object: str
+    object: Label
     extents: Vec3  # bounding-box size, metres
 
 
@@ -394,16 +419,41 @@ _AT = re.compile(r" - at `\$(?P<path>[^`]*)`$")
 _NAMED = re.compile(r"(?:missing required|unknown) field `(?P<name>[^`]+)`")
 
 
+# Admission limits of `decode` (issue 16, finding 8). A payload is refused before it is
+# parsed if it is larger than its limit or nested deeper than MAX_DEPTH; every error text is
+# cut to MAX_ERROR_TEXT characters with control characters escaped, so a hostile field is
+# never echoed back or logged at length.
+MAX_PAYLOAD = 64 * 1024  # bytes; every request and reply but a trajectory is far smaller
+# A trajectory is sampled at 100 Hz with positions, velocities and accelerations: a 60 s
+# motion of 7 joints is about 3 MB of JSON.
+MAX_TRAJECTORY_PAYLOAD = 16 * 1024 * 1024
+MAX_DEPTH = 32  # our deepest message (Reply > Status > nodes > NodeHealth) has 4 levels
+MAX_ERROR_TEXT = 300
+_LARGE = ("ExecuteRequest", "JointTrajectoryMsg")
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def clip_text(text: str, limit: int = MAX_ERROR_TEXT) -> str:
+    """`text` on one line, control characters escaped, at most about `limit` characters."""
+    if len(text) > limit:
+        text = text[:limit] + f"... ({len(text)} characters)"
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+
 def _message_error(type_name: str, exc: msgspec.MsgspecError) -> MessageError:
     text = str(exc)
     path = ""
     m = _AT.search(text)
     if m:
-        path = m.group("path").lstrip(".")
+        path = clip_text(m.group("path").lstrip("."), 100)
         text = text[: m.start()]
+    text = clip_text(text, 4 * MAX_ERROR_TEXT)  # the field name may follow a long value
     named = _NAMED.search(text)
     if named:  # the field itself is missing/unknown: name it, under its parent's path
-        path = f"{path}.{named.group('name')}" if path else named.group("name")
+        name = clip_text(named.group("name"), 100)
+        path = f"{path}.{name}" if path else name
+    text = clip_text(text)
     if isinstance(exc, msgspec.DecodeError) and not isinstance(exc, msgspec.ValidationError):
         text = f"not valid JSON ({text})"
     if path:
@@ -411,13 +461,60 @@ def _message_error(type_name: str, exc: msgspec.MsgspecError) -> MessageError:
     return MessageError(f"invalid {type_name}: {text}")
 
 
+_STRINGS = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+def _depth(data: bytes) -> int:
+    """Deepest nesting of arrays / objects in `data` (strings ignored), without recursing."""
+    bare = _STRINGS.sub(b'""', data)
+    b = np.frombuffer(bare, dtype=np.uint8)
+    step = np.isin(b, (ord("["), ord("{"))).astype(np.int32)
+    step -= np.isin(b, (ord("]"), ord("}")))
+    return int(np.cumsum(step).max(initial=0))
+
+
+class _DuplicateKeyError(Exception):
+    pass
+
+
+def _no_duplicates(pairs: list[tuple[str, Any]]) -> None:
+    seen: set[str] = set()
+    for k, _ in pairs:
+        if k in seen:
+            raise _DuplicateKeyError(k)
+        seen.add(k)
+
+
+def _check_duplicates(data: bytes, name: str) -> None:
+    """msgspec keeps the last of duplicated keys silently; refuse them at every level so
+    ``{"v":2,"v":1}`` and ``{"v":1,"v":2}`` are treated alike (both refused)."""
+    try:
+        json.loads(data, object_pairs_hook=_no_duplicates)
+    except _DuplicateKeyError as e:
+        key = clip_text(str(e.args[0]), 100)
+        raise MessageError(f"invalid {name}: duplicate key `{key}`", field=key) from None
+    except (ValueError, RecursionError):
+        pass  # malformed JSON: msgspec says what is wrong below
+
+
 def decode(data: bytes | bytearray | memoryview | str, type: Any) -> Any:
-    """Parse and validate `data` as `type`; raise `MessageError` naming the bad field."""
+    """Parse and validate `data` as `type`; raise `MessageError` naming the bad field.
+
+    Refused before parsing: more than MAX_PAYLOAD bytes (MAX_TRAJECTORY_PAYLOAD for a
+    trajectory), nesting deeper than MAX_DEPTH, and any key given twice in one object."""
     name = _type_name(type)
     if isinstance(data, str):
         data = data.encode()
+    data = bytes(data)
     if not data:
         raise MessageError(f"invalid {name}: empty payload")
+    limit = MAX_TRAJECTORY_PAYLOAD if getattr(type, "__name__", "") in _LARGE else MAX_PAYLOAD
+    if len(data) > limit:
+        raise MessageError(f"invalid {name}: payload of {len(data)} bytes exceeds {limit} bytes")
+    depth = _depth(data)
+    if depth > MAX_DEPTH:
+        raise MessageError(f"invalid {name}: JSON nested {depth} deep, more than {MAX_DEPTH}")
+    _check_duplicates(data, name)
     try:
         version = _VERSION_DECODER.decode(data).v
     except msgspec.MsgspecError as e:
@@ -436,6 +533,8 @@ def decode(data: bytes | bytearray | memoryview | str, type: Any) -> Any:
         return dec.decode(data)
     except msgspec.MsgspecError as e:
         raise _message_error(name, e) from None
+    except RecursionError:  # cannot happen below MAX_DEPTH; never let a traceback out
+        raise MessageError(f"invalid {name}: JSON nested too deep") from None
 
 
 # --------------------------------------------------------------------------- conversions

@@ -63,6 +63,7 @@ from activetouch.service.messages import (
     Reply,
     SimPlaceRequest,
     SimPlaceResult,
+    clip_text,
     decode,
     encode,
     error_types,
@@ -559,6 +560,9 @@ class _RemoteNode:
                     )
                 if not isinstance(item, zenoh.Reply):
                     continue
+                failure = self._zenoh_failure(op, key, item, timeout)
+                if failure is not None:
+                    raise failure
                 res = item.result
                 env = decode(res.payload.to_bytes(), Reply[result_type])
                 if env.ok:
@@ -567,6 +571,25 @@ class _RemoteNode:
         finally:
             with self._cv:
                 self._pending.discard(q)
+
+    def _zenoh_failure(
+        self, op: str, key: str, reply: zenoh.Reply, timeout: float
+    ) -> NodeUnavailableError | None:
+        """The error of a reply made by Zenoh itself (not our JSON `Reply`), else None.
+
+        Zenoh answers a query nobody replied to in time with an error reply whose payload is
+        the plain string "Timeout"; decoding that as a `Reply` said "not valid JSON"."""
+        if reply.ok:
+            return None
+        err = reply.err
+        data = err.payload.to_bytes()
+        if str(err.encoding).startswith(str(JSON)) or data.lstrip().startswith(b"{"):
+            return None  # one of ours (reply_err with a JSON Reply)
+        text = clip_text(data[:200].decode("utf-8", "replace"), 100)
+        what = f"{self.node} node of robot {self.robot!r}: {op} on {key}"
+        if text.strip().lower() == "timeout":
+            return NodeUnavailableError(f"{what} timed out (no reply within {timeout:g} s)")
+        return NodeUnavailableError(f"{what} failed in Zenoh: {text or 'no reason given'}")
 
     def _remote_error(self, op: str, env: Reply) -> Exception:
         known = error_types()
