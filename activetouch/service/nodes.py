@@ -447,6 +447,51 @@ class PlaceNode(_ServedNode):
 # --------------------------------------------------------------------------- clients
 
 
+LIVELINESS_CHECK_S = 1.0  # how long to ask for a key's tokens after one of them dropped
+
+
+def tokens_left(session: zenoh.Session, key: str, timeout: float = LIVELINESS_CHECK_S) -> bool:
+    """True if some session still holds a liveliness token on `key` (True also when the
+    question cannot be asked: a node is never declared gone on a failed check alone)."""
+    try:
+        replies = session.liveliness().get(key, timeout=timeout)
+        return any(r.ok is not None for r in replies)
+    except Exception:
+        log.debug("liveliness check of %s failed", key, exc_info=True)
+        return True
+
+
+class _Coalesced:
+    """Runs `fn` on its own thread when requested; requests arriving while it runs make it run
+    once more, not once each (a flood of dropped tokens costs one check at a time)."""
+
+    def __init__(self, fn: Callable[[], None], name: str) -> None:
+        self._fn, self._name = fn, name
+        self._lock = threading.Lock()
+        self._running = False
+        self._again = False
+
+    def request(self) -> None:
+        with self._lock:
+            if self._running:
+                self._again = True
+                return
+            self._running = True
+        threading.Thread(target=self._loop, name=self._name, daemon=True).start()
+
+    def _loop(self) -> None:
+        while True:
+            try:
+                self._fn()
+            except Exception:
+                log.debug("%s failed", self._name, exc_info=True)
+            with self._lock:
+                if not self._again:
+                    self._running = False
+                    return
+                self._again = False
+
+
 class _RemoteNode:
     """Zenoh gets with explicit timeouts, watched by the node's liveliness token."""
 
@@ -462,6 +507,7 @@ class _RemoteNode:
         self._cv = threading.Condition()
         self._pending: set[queue.SimpleQueue] = set()
         self._live_sub: Any = None
+        self._gone_check = _Coalesced(self._check_gone, f"activetouch-{node}-liveliness")
         self._watch()
 
     @property
@@ -483,13 +529,24 @@ class _RemoteNode:
                 raise NodeUnavailableError(f"cannot watch {self.alive_key}: {e}") from None
 
     def _on_liveliness(self, sample: zenoh.Sample) -> None:
-        alive = sample.kind == zenoh.SampleKind.PUT
-        with self._cv:
-            self._alive = alive
-            self._cv.notify_all()
-            waiting = [] if alive else list(self._pending)
-        for q in waiting:  # wake calls in flight: their node is gone
-            q.put(_GONE)
+        if sample.kind == zenoh.SampleKind.PUT:
+            with self._cv:
+                self._alive = True  # a token reappearing brings the node back
+                self._cv.notify_all()
+            return
+        # A dropped token may be anyone's (a client can declare and drop the same key): the
+        # node is gone only if no token of its key is left. Asking is a Zenoh call, so not
+        # here in the callback; one check at a time, repeated if more drops came meanwhile.
+        self._gone_check.request()
+
+    def _check_gone(self) -> None:
+        if not tokens_left(self._session, self.alive_key):
+            with self._cv:
+                self._alive = False
+                self._cv.notify_all()
+                waiting = list(self._pending)
+            for q in waiting:  # wake calls in flight: their node is gone
+                q.put(_GONE)
 
     def wait_alive(self, timeout: float | None = None) -> None:
         """Return once the node's liveliness token is seen; NodeUnavailableError after `timeout`."""
@@ -792,15 +849,34 @@ class AliveNodes:
         self._cv = threading.Condition()
         self._state: dict[str, bool] = {}
         self._changed: dict[str, float] = {}
+        self._session = session
+        self._checks: dict[str, _Coalesced] = {}
         self._sub: Any = session.liveliness().declare_subscriber(
             self.keys.alive_all, _direct(self._on_sample), history=True
         )
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         node = Keys.node_of_alive_key(str(sample.key_expr))
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._set(node, True)
+            return
+        with self._cv:  # confirm off the callback, as `_RemoteNode` does
+            check = self._checks.get(node)
+            if check is None:
+                check = self._checks[node] = _Coalesced(
+                    lambda: self._confirm(node), f"activetouch-alive-{node}"
+                )
+        check.request()
+
+    def _confirm(self, node: str) -> None:
+        if not tokens_left(self._session, self.keys.alive(node)):
+            self._set(node, False)
+
+    def _set(self, node: str, alive: bool) -> None:
         with self._cv:
-            self._state[node] = sample.kind == zenoh.SampleKind.PUT
-            self._changed[node] = time.monotonic()
+            if self._state.get(node) != alive:
+                self._changed[node] = time.monotonic()
+            self._state[node] = alive
             self._cv.notify_all()
 
     def snapshot(self) -> dict[str, bool]:
