@@ -66,6 +66,11 @@ class MotionPlan:
     planning_s: float
     used_rrt: bool
     stages: dict[str, float] = field(default_factory=dict)
+    pre_grasp: np.ndarray | None = None  # the goal's pre-grasp: the next move's retreat
+
+    @property
+    def goal(self) -> np.ndarray:
+        return self.waypoints[-1]
 
 
 class BaxterWristMotion(WristMotion):
@@ -119,16 +124,30 @@ class BaxterWristMotion(WristMotion):
         self.jerk = np.full(n, self.cfg.jerk)
         self.sample_dt = sample_dt
         self.last_plan: MotionPlan | None = None
+        # Goal IK per base-frame pose for the current scene: (goal, pre-grasp) or the reason it
+        # is unreachable. Filled by `reachable()` and by planning; cleared when the scene changes.
+        self._goals: dict[bytes, tuple[np.ndarray, np.ndarray] | str] = {}
+        # Robot time spent by this motion layer: executed trajectories (seconds of trajectory
+        # time, as the robot takes them) and planning (wall seconds). Readers take differences.
+        self.robot_seconds = 0.0
+        self.planning_seconds = 0.0
+        self.moves = 0
 
     # ---- placement and obstacles -------------------------------------------------------
 
     def set_placement(self, placement: Placement) -> None:
+        if same_placement(placement, getattr(self, "placement", None)):
+            return  # nothing moved: keep the scene and the solved goals
         self.placement = placement
         self.scene.set_object(placement, self.scene.object_hull, self.scene.object_extents)
+        self._goals.clear()
+        self.last_plan = None
 
     def set_object(self, extents: np.ndarray | None = None, hull: np.ndarray | None = None) -> None:
         """The object's shape (box extents or hull points in the object frame)."""
         self.scene.set_object(self.placement, hull, extents)
+        self._goals.clear()
+        self.last_plan = None
 
     # ---- planning -----------------------------------------------------------------------
 
@@ -173,16 +192,33 @@ class BaxterWristMotion(WristMotion):
             raise UnreachableError(f"no IK solution ({st.attempts} starts)")
         return q, pre[id(q)]
 
+    def goal_for(self, pose_base: Pose, q_near: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """`solve_goal`, remembered per pose while the scene stays the same (an unreachable
+        pose raises its first reason again at once)."""
+        key = pose_key(pose_base)
+        hit = self._goals.get(key)
+        if isinstance(hit, str):
+            raise UnreachableError(hit)
+        if hit is not None:
+            return hit
+        try:
+            found = self.solve_goal(pose_base, q_near)
+        except UnreachableError as e:
+            self._goals[key] = str(e)
+            raise
+        self._goals[key] = found
+        return found
+
     def reachable(self, poses_object: np.ndarray) -> np.ndarray:
         """(n,) bool: which object-frame poses (n, 7) have a collision-free goal and pre-grasp.
-        Their solutions join the seed table, so later moves to them solve at once."""
+        Their solutions are kept for planning (and join the seed table)."""
         ok = np.zeros(len(poses_object), dtype=bool)
         found = []
         q_near = self.model.ready
         for i, p in enumerate(np.atleast_2d(poses_object)):
             base = self.placement.to_base(Pose.from_array(p))
             try:
-                q, pre = self.solve_goal(base, q_near)
+                q, pre = self.goal_for(base, q_near)
             except UnreachableError:
                 continue
             ok[i] = True
@@ -214,14 +250,13 @@ class BaxterWristMotion(WristMotion):
 
     def plan(self, pose: Pose, q_start: np.ndarray | None = None) -> MotionPlan:
         """Plan a move of the hand to `pose` (object frame) from `q_start` (default: now)."""
-        import pinocchio as pin
 
         t0 = time.perf_counter()
         cfg = self.cfg
         q0 = self.current_q() if q_start is None else np.asarray(q_start, dtype=np.float64)
         stages: dict[str, float] = {}
         base = self.placement.to_base(pose)
-        q_goal, q_pre = self.solve_goal(base, q0)
+        q_goal, q_pre = self.goal_for(base, q0)
         stages["ik_s"] = time.perf_counter() - t0
 
         # Retreat from where the hand is now, if possible; else the transit starts here.
@@ -229,18 +264,7 @@ class BaxterWristMotion(WristMotion):
             raise UnreachableError(
                 f"the start configuration is in collision: {self.scene.colliding_pairs(q0, False)}"
             )
-        q_ret = q0
-        pin.forwardKinematics(self.model.model, self.ik.data, q0)
-        now = pin.updateFramePlacement(self.model.model, self.ik.data, self.model.hand_frame)
-        back = offset_along_z(now.copy(), -cfg.approach_m)
-        q_r = self.ik.solve(back, q0, accept=lambda q: not self.scene.in_collision(q, True))
-        if (
-            q_r is not None
-            and segment_free(self.scene, q0, q_r, False, cfg.check_step_rad, cfg.check_step_m)[0]
-        ):
-            q_ret = q_r
-        elif self.scene.in_collision(q0, True):
-            raise UnreachableError("cannot retreat from the current grasp without a collision")
+        q_ret = self._retreat(q0)
         stages["ends_s"] = time.perf_counter() - t0
 
         used_rrt = False
@@ -287,13 +311,59 @@ class BaxterWristMotion(WristMotion):
                 "rrt": used_rrt,
             },
         )
-        plan = MotionPlan(waypoints, traj, duration, planning, used_rrt, stages)
+        plan = MotionPlan(waypoints, traj, duration, planning, used_rrt, stages, q_pre)
         self.last_plan = plan
         return plan
 
+    def _retreat(self, q0: np.ndarray) -> np.ndarray:
+        """Where the move leaves the current grasp for: the hand backed off along -z. Right
+        after a planned move that is the goal's pre-grasp (already checked); else solved now.
+        Returns `q0` itself when no retreat is needed or possible from a free configuration."""
+        import pinocchio as pin
+
+        cfg = self.cfg
+        last = self.last_plan
+        if (
+            last is not None
+            and last.pre_grasp is not None
+            and np.allclose(q0, last.goal, atol=1e-6)
+        ):
+            return last.pre_grasp
+        pin.forwardKinematics(self.model.model, self.ik.data, q0)
+        now = pin.updateFramePlacement(self.model.model, self.ik.data, self.model.hand_frame)
+        back = offset_along_z(now.copy(), -cfg.approach_m)
+        q_r = self.ik.solve(back, q0, accept=lambda q: not self.scene.in_collision(q, True))
+        if (
+            q_r is not None
+            and segment_free(self.scene, q0, q_r, False, cfg.check_step_rad, cfg.check_step_m)[0]
+        ):
+            return q_r
+        if self.scene.in_collision(q0, True):
+            raise UnreachableError("cannot retreat from the current grasp without a collision")
+        return q0
+
     def move_to(self, pose: Pose) -> None:
-        """Plan, then execute on the arm (`StoppedError` from the arm passes through)."""
-        self.arm.execute(self.plan(pose).trajectory)
+        """Plan, then execute on the arm (`StoppedError` from the arm passes through). Counts
+        planning seconds always and robot seconds for completed motions."""
+        t0 = time.perf_counter()
+        try:
+            plan = self.plan(pose)
+        finally:
+            self.planning_seconds += time.perf_counter() - t0
+        self.arm.execute(plan.trajectory)
+        self.robot_seconds += plan.duration_s
+        self.moves += 1
+
+
+def pose_key(pose: Pose) -> bytes:
+    """A dictionary key for a pose (to 1e-9)."""
+    return np.round(pose.as_array(), 9).tobytes()
+
+
+def same_placement(a: Placement | None, b: Placement | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return bool(np.array_equal(a.xyz, b.xyz) and a.yaw_rad == b.yaw_rad)
 
 
 def _dedupe(wp: np.ndarray, tol: float = 1e-9) -> np.ndarray:

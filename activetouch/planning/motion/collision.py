@@ -80,6 +80,8 @@ class CollisionScene:
         for i in moving:
             geom.addCollisionPair(pin.CollisionPair(i, tid))
         self.object_pairs: list[int] = []
+        self.arm_object_pairs: list[int] = []  # robot links (not the hand) against the object
+        self.hand_object_pairs: list[int] = []
         has_object = self.placement is not None and (
             self.object_hull is not None or self.object_extents is not None
         )
@@ -87,10 +89,12 @@ class CollisionScene:
             shape = object_geometry(self.object_hull, self.object_extents)
             m = pin.SE3(self.placement.rotation.as_matrix(), self.placement.xyz)
             oid = geom.addGeometryObject(pin.GeometryObject("object", 0, 0, m, shape))
-            first = len(geom.collisionPairs)
+            hand = set(self.arm.hand_geoms)
             for i in moving:
+                k = len(geom.collisionPairs)
                 geom.addCollisionPair(pin.CollisionPair(i, oid))
-            self.object_pairs = list(range(first, len(geom.collisionPairs)))
+                (self.hand_object_pairs if i in hand else self.arm_object_pairs).append(k)
+            self.object_pairs = sorted(self.arm_object_pairs + self.hand_object_pairs)
         self.geom = geom
         self.gdata = pin.GeometryData(geom)
         for req in self.gdata.collisionRequests:  # pairs closer than this count as touching
@@ -98,30 +102,41 @@ class CollisionScene:
         self.manager = pin.BroadPhaseManager_DynamicAABBTreeCollisionManager(
             self.arm.model, geom, self.gdata
         )
-        self._object_on = True
+        self._arm_object_on = True
+        self._hand_object_on = True
 
-    def _object(self, on: bool) -> None:
-        if on == self._object_on:
-            return
-        for k in self.object_pairs:
-            if on:
-                self.gdata.activateCollisionPair(k)
-            else:
-                self.gdata.deactivateCollisionPair(k)
-        self._object_on = on
+    def _object(self, arm_on: bool, hand_on: bool) -> None:
+        for pairs, on, attr in (
+            (self.arm_object_pairs, arm_on, "_arm_object_on"),
+            (self.hand_object_pairs, hand_on, "_hand_object_on"),
+        ):
+            if on == getattr(self, attr):
+                continue
+            for k in pairs:
+                if on:
+                    self.gdata.activateCollisionPair(k)
+                else:
+                    self.gdata.deactivateCollisionPair(k)
+            setattr(self, attr, on)
 
-    def in_collision(self, q: np.ndarray, with_object: bool = True) -> bool:
-        """True if anything touches at `q` (the object counted only `with_object`)."""
+    def in_collision(
+        self, q: np.ndarray, with_object: bool = True, hand_object: bool | None = None
+    ) -> bool:
+        """True if anything touches at `q`. The object counts only `with_object`; the hand
+        against the object only `hand_object` (default: `with_object`), so a caller that checks
+        the hand against the real object elsewhere can still check the arm against it."""
         import pinocchio as pin
 
-        self._object(with_object)
+        self._object(with_object, with_object if hand_object is None else hand_object)
         return bool(pin.computeCollisions(self.arm.model, self.data, self.manager, q, True))
 
-    def colliding_pairs(self, q: np.ndarray, with_object: bool = True) -> list[tuple[str, str]]:
+    def colliding_pairs(
+        self, q: np.ndarray, with_object: bool = True, hand_object: bool | None = None
+    ) -> list[tuple[str, str]]:
         """Names of every touching pair at `q` (slow path, for error messages and tests)."""
         import pinocchio as pin
 
-        self._object(with_object)
+        self._object(with_object, with_object if hand_object is None else hand_object)
         pin.computeCollisions(self.arm.model, self.data, self.geom, self.gdata, q, False)
         out = []
         objs = self.geom.geometryObjects
