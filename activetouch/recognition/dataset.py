@@ -318,6 +318,15 @@ class Dataset:
                 manifest = dict(ds._manifest, meta={**stored, **added})
                 ds._write_manifest(manifest)
             return ds
+        # Object files without a manifest: the manifest was deleted or lost. Starting a new
+        # one would re-collect and overwrite them silently (issue 16, finding 9).
+        orphans = sorted((p / OBJECTS_DIR).glob("*.npz")) if (p / OBJECTS_DIR).is_dir() else []
+        if orphans:
+            raise DataError(
+                f"{p / MANIFEST} is missing but {len(orphans)} object file(s) exist in "
+                f"{p / OBJECTS_DIR} (e.g. {orphans[0].name}): restore the manifest, or move "
+                "the files away to collect again"
+            )
         manifest = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,

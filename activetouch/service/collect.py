@@ -11,12 +11,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from activetouch.errors import UnreachableError
+from activetouch.errors import DataError, UnreachableError
 from activetouch.interfaces import Hand, Pose
 from activetouch.planning.grid import GridPoses
 from activetouch.planning.motion.base import WristMotion
 from activetouch.recognition.contacts import drop_support_contacts
-from activetouch.recognition.dataset import Dataset, GraspRecord
+from activetouch.recognition.dataset import MANIFEST, Dataset, GraspRecord
 
 SKIPPED_ATTR = "skipped_pose_ids"  # unreachable poses, kept in the object's attrs for resuming
 
@@ -30,11 +30,25 @@ class CollectStats:
     seconds: float = 0.0
 
 
+def _skipped(dataset: Dataset, name: str) -> set[int]:
+    """The object's unreachable pose ids; DataError (one line) when the manifest holds
+    anything but a list of non-negative integers there (a hand-edited `5` or `["x"]`)."""
+    value = dataset.attrs(name).get(SKIPPED_ATTR, [])
+    if not isinstance(value, list) or not all(
+        isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
+    ):
+        raise DataError(
+            f"{dataset.path / MANIFEST}: object {name!r}: attrs.{SKIPPED_ATTR} must be a list "
+            f"of pose ids (non-negative integers), got {str(value)[:80]}"
+        )
+    return set(value)
+
+
 def pending_poses(dataset: Dataset, name: str, grid: GridPoses) -> list[int]:
     """Indices into `grid` of poses not yet grasped nor known to be unreachable."""
     done: set[int] = set()
     if name in dataset.object_names():
-        done = dataset.done_pose_ids(name) | set(dataset.attrs(name).get(SKIPPED_ATTR, []))
+        done = dataset.done_pose_ids(name) | _skipped(dataset, name)
     return [i for i, pid in enumerate(grid.pose_ids) if int(pid) not in done]
 
 
