@@ -1,0 +1,174 @@
+"""Guarded touches with the hand: move the flange, step along a direction until a tactile
+sensor reports contact, press a little further, and find where the contact began.
+
+The flange is what the arm positions (`Flange`): for a floating wrist its joints are the
+flange pose directly (`FloatingFlange`); a Baxter needs its forward kinematics (a hook: see
+docs/calibration.md). Everything is in the robot base frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from activetouch.calibration.mount import onset_height
+from activetouch.calibration.tactile import CalibrationRefusedError
+from activetouch.errors import UnreachableError
+from activetouch.interfaces import N_FINGERS, Arm, Hand, Pose
+
+
+class Flange(Protocol):
+    def pose(self) -> Pose: ...
+
+    def move_to(self, pose: Pose) -> None: ...
+
+
+class FloatingFlange:
+    """A floating-wrist arm (joints x y z roll pitch yaw): its joints are the flange pose."""
+
+    def __init__(self, arm: Arm) -> None:
+        from activetouch.planning.motion.floating import WRIST_JOINTS
+
+        if tuple(arm.joint_names) != WRIST_JOINTS:
+            raise CalibrationRefusedError(
+                "touch calibration here drives a floating wrist; this arm has joints "
+                f"{', '.join(arm.joint_names)} (needs the flange hook, docs/calibration.md)"
+            )
+        self.arm = arm
+
+    def pose(self) -> Pose:
+        from activetouch.planning.motion.floating import wrist_joints_to_pose
+
+        return wrist_joints_to_pose(self.arm.joint_state().position)
+
+    def move_to(self, pose: Pose) -> None:
+        from activetouch.planning.motion.floating import pose_to_wrist_joints, straight_trajectory
+
+        start = self.arm.joint_state().position
+        goal = pose_to_wrist_joints(pose)
+        self.arm.execute(straight_trajectory(start, goal, self.arm.limits.velocity))
+
+
+def hand_points(preshape: float = 0.0, proximal=None, distal=None) -> np.ndarray:
+    """(n, 3) corners of every finger link's collision boxes (proximal, distal, fingertip) in
+    the hand frame at these joint angles (open by default): the hand's known geometry."""
+    from activetouch.sim.reflex_urdf import ReflexGeometry, finger_link_transforms, rot_y
+
+    g = ReflexGeometry()
+    prox = np.zeros(N_FINGERS) if proximal is None else np.asarray(proximal)
+    dist = np.zeros(N_FINGERS) if distal is None else np.asarray(distal)
+    signs = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
+    pts = []
+    for f in range(N_FINGERS):
+        t_prox, t_dist = finger_link_transforms(g, f, preshape, float(prox[f]), float(dist[f]))
+        for t, (lo, hi) in ((t_prox, g.proximal_box), (t_dist, g.distal_box)):
+            c = lo + signs * (hi - lo)
+            pts.append(c @ t[:3, :3].T + t[:3, 3])
+        centre, size = g.fingertip_box
+        r = rot_y(g.tip_sensor_tilt)
+        c = centre + ((signs - 0.5) * size) @ r.T
+        pts.append(c @ t_dist[:3, :3].T + t_dist[:3, 3])
+    return np.concatenate(pts)
+
+
+@dataclass(frozen=True)
+class TouchResult:
+    flange: Pose  # flange pose where the contact began
+    sensor: int  # the sensor that pressed hardest
+    readings: int  # hand readings taken in the descent
+
+
+def _max_contact(hand: Hand) -> tuple[float, int, bool]:
+    s = hand.state()
+    p = np.asarray(s.pressures, dtype=np.float64)
+    i = int(np.argmax(np.where(s.contact, p, -np.inf))) if s.contact.any() else int(np.argmax(p))
+    return float(p[i]), i, bool(s.contact.any())
+
+
+def guarded_descent(
+    hand: Hand,
+    flange: Flange,
+    start: Pose,
+    coarse_step: float,
+    fine_step: float,
+    press_m: float,
+    press_pressure: float,
+    max_search_m: float,
+    threshold: float,
+    direction: np.ndarray | None = None,
+) -> TouchResult:
+    """From `start` (flange pose, base frame), step along `direction` (default straight
+    down) until a sensor reports contact; back up one coarse step and re-approach finely,
+    pressing at most `press_m` past the first contact or until `press_pressure`; then back
+    off to `start`. The contact began where the pressure, linear in depth, extrapolates to 0.
+    """
+    d = np.array([0.0, 0.0, -1.0]) if direction is None else np.asarray(direction, float)
+    d = d / np.linalg.norm(d)
+    flange.move_to(start)
+    at = lambda s: Pose(start.xyz + s * d, start.quat)  # noqa: E731
+    s, n = 0.0, 0
+    while True:
+        s += coarse_step
+        if s > max_search_m:
+            flange.move_to(start)
+            raise CalibrationRefusedError(
+                f"no touch within {max_search_m * 1e3:.0f} mm of {np.round(start.xyz, 3)}"
+            )
+        try:
+            flange.move_to(at(s))
+        except UnreachableError as e:  # the arm (or twin) refuses to go deeper: stop here
+            flange.move_to(start)
+            raise CalibrationRefusedError(f"touch blocked before any sensor felt it: {e}") from e
+        n += 1
+        _, _, touching = _max_contact(hand)
+        if touching:
+            break
+    # Fine re-approach from one coarse step back.
+    s -= coarse_step
+    depth: list[float] = []
+    press: list[float] = []
+    sensor, first = -1, None
+    while True:
+        s += fine_step
+        try:
+            flange.move_to(at(s))
+        except UnreachableError:
+            break
+        n += 1
+        p, i, touching = _max_contact(hand)
+        if touching:
+            first = s if first is None else first
+            sensor = i if sensor < 0 else sensor
+            depth.append(s)
+            press.append(p)
+            if p > press_pressure or s - first >= press_m:
+                break
+        else:  # below the threshold: still part of the rising line (or noise)
+            depth.append(s)
+            press.append(p)
+        if s > max_search_m:
+            break
+    flange.move_to(start)
+    if first is None:
+        raise CalibrationRefusedError("the touch was lost on the fine approach")
+    # Along the descent, "height" is -s: pressure rises as s grows.
+    # Readings from half the threshold up count (the twin's noise is a tenth of it).
+    s0 = -onset_height(-np.asarray(depth), np.asarray(press), 0.5 * threshold)
+    return TouchResult(at(s0), sensor, n)
+
+
+def lowest_point_start(
+    orientation: Rotation, mount: Pose, points: np.ndarray, xy: np.ndarray, height: float
+) -> Pose:
+    """The flange pose that puts the hand (through `mount`) at `orientation` with its lowest
+    point `points` (hand frame) at `height` above base z = 0, centred over `xy`."""
+    rm = Rotation.from_quat(mount.quat)
+    r_f = orientation * rm.inv()
+    # hand points in the base frame with the flange at the origin
+    p = r_f.apply(rm.apply(points) + mount.xyz)
+    low = p[np.argmin(p[:, 2])]
+    t = np.array([xy[0] - low[0], xy[1] - low[1], height - low[2]])
+    return Pose(t, r_f.as_quat())

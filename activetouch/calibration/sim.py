@@ -1,0 +1,60 @@
+"""Twin stand-ins with errors whose true values a test knows: an arm whose hand sits on its
+flange through a mount that differs from the configured one."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from activetouch.calibration.mount import compose, inverse
+from activetouch.interfaces import Arm, JointLimits, JointState, JointTrajectory, Pose
+
+
+class MountedArm(Arm):
+    """Wraps a floating-wrist arm (the twin's: its joints are the hand pose) so that its joints
+    are the flange pose and the hand hangs off the flange through `true_mount`."""
+
+    def __init__(self, inner: Arm, true_mount: Pose) -> None:
+        self.inner = inner
+        self.true_mount = true_mount
+        self._inv = inverse(true_mount)
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.inner.joint_names
+
+    @property
+    def limits(self) -> JointLimits:
+        return self.inner.limits
+
+    def connect(self) -> None:
+        self.inner.connect()
+
+    def disconnect(self) -> None:
+        self.inner.disconnect()
+
+    def joint_state(self) -> JointState:
+        from activetouch.planning.motion.floating import pose_to_wrist_joints, wrist_joints_to_pose
+
+        js = self.inner.joint_state()
+        flange = compose(wrist_joints_to_pose(js.position), self._inv)
+        return JointState(js.names, pose_to_wrist_joints(flange), js.velocity, js.stamp)
+
+    def execute(self, trajectory: JointTrajectory) -> None:
+        from activetouch.planning.motion.floating import (
+            WRIST_JOINTS,
+            pose_to_wrist_joints,
+            wrist_joints_to_pose,
+        )
+
+        order = [list(trajectory.names).index(n) for n in WRIST_JOINTS]
+        q = np.asarray(trajectory.positions, dtype=np.float64)[:, order]
+        hand_q = np.stack(
+            [pose_to_wrist_joints(compose(wrist_joints_to_pose(row), self.true_mount)) for row in q]
+        )
+        self.inner.execute(JointTrajectory(WRIST_JOINTS, trajectory.times, hand_q))
+
+    def stop(self) -> None:
+        self.inner.stop()
+
+    def clear_stop(self) -> None:
+        self.inner.clear_stop()
