@@ -26,6 +26,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "activetouch.service.commands.eval",
     "activetouch.service.commands.serve",
     "activetouch.service.commands.emulate",
+    "activetouch.service.commands.calibrate",
 )
 
 
