@@ -201,3 +201,17 @@ def test_independent_board_drift_and_touch_refusal():
                 )
         finally:
             hand.disconnect()
+
+
+def test_load_into_applies_stored_records_and_warns_when_missing(emulated, tmp_path, caplog):
+    from activetouch.calibration.apply import load_into
+
+    _emu, hand, offsets = emulated
+    rec, _ = calibrate_tactile(hand, "emu", TactileSettings(duration_s=1.0))
+    store.save(tmp_path, rec)
+    hand.offsets = np.zeros(38)
+    used = load_into(hand, "emu", tmp_path)
+    assert used["tactile"] is not None and used["fingers"] is None
+    assert "run `activetouch calibrate fingers`" in caplog.text
+    good = [i for i in range(38) if i not in (8, 33)]
+    assert np.max(np.abs(hand.offsets[good] - offsets[good])) < 1.5
