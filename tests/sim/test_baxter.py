@@ -79,7 +79,7 @@ def test_config_is_light_and_the_default_workcell_is_refused() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
-    with pytest.raises(ConfigError, match="arm.sample_dt"):
+    with pytest.raises(ConfigError, match=r"arm\.sample_dt"):
         load_config(BAXTER_TOML, ["arm.sample_dt=0.05"])
     from activetouch.sim.baxter import check_object_xy
 
@@ -119,7 +119,7 @@ def test_out_of_limit_trajectories_are_refused_before_moving(twin) -> None:
     with pytest.raises(UnreachableError, match="velocity"):
         twin.execute(traj)
     away = q0 + 0.2
-    with pytest.raises(UnreachableError, match="starts 0.200 rad from"):
+    with pytest.raises(UnreachableError, match=r"starts 0\.200 rad from"):
         twin.execute(line(away, away, 1.0, twin.joint_names))
     np.testing.assert_array_equal(twin.joint_state().position, q0)
     assert twin.world.wrist_pose == hand0
@@ -132,7 +132,7 @@ def test_a_contact_stops_the_arm_at_the_last_free_sample(twin, baxter) -> None:
     twin.execute(line(q0, above, 2.0, twin.joint_names))
     # Straight down into the box: the hand meets it (the world's check, not the planner's).
     into = solve(baxter, [0.6, 0.25, -0.1])
-    with pytest.raises(UnreachableError, match="blocked at t = .*object"):
+    with pytest.raises(UnreachableError, match=r"blocked at t = .*object"):
         twin.execute(line(above, into, 2.0, twin.joint_names))
     stopped = twin.joint_state().position
     assert not np.allclose(stopped, into, atol=1e-3) and not np.allclose(stopped, above)
@@ -141,7 +141,7 @@ def test_a_contact_stops_the_arm_at_the_last_free_sample(twin, baxter) -> None:
     low = baxter.ready.copy()
     low[1] += 0.8  # the shoulder pitches down: the arm swings through the table top
     twin.home()
-    with pytest.raises(UnreachableError, match="blocked .*table"):
+    with pytest.raises(UnreachableError, match=r"blocked .*table"):
         twin.execute(line(baxter.ready, low, 3.0, twin.joint_names))
 
 
