@@ -124,7 +124,7 @@ def main() -> None:
     arm = MemoryArm(model.joint_names, model.limits(1.5), model.ready)
     reach: dict[str, int] = {}
     reach_s: dict[str, float] = {}
-    plan_ms, robot_s, rrt, unreachable, colliding, moves = [], [], 0, 0, 0, 0
+    plan_ms, robot_s, rrt, lift, unreachable, colliding, moves = [], [], 0, 0, 0, 0, 0
     per_obj = max(1, args.moves // len(specs))
     for name, (ext, hull) in specs.items():
         pl = baxter_placement(float(ext[2]))
@@ -151,6 +151,7 @@ def main() -> None:
             moves += 1
             robot_s.append(plan.duration_s)
             rrt += plan.used_rrt
+            lift += int(plan.stages.get("via_lift", 0.0))
             colliding += _collides(scene, plan)
     out = {
         "model_load_s": load_s,
@@ -171,6 +172,7 @@ def main() -> None:
         "moves": moves,
         "moves_unreachable": unreachable,
         "moves_rrt": rrt,
+        "moves_via_lift": lift,
         "plan_ms_median": pct(plan_ms, 50),
         "plan_ms_p95": pct(plan_ms, 95),
         "robot_s_per_move_median": pct(robot_s, 50),

@@ -15,6 +15,7 @@ phase-synchronised rest-to-rest motion, so the timed motion is the checked one.
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
 
@@ -269,8 +270,9 @@ class BaxterWristMotion(WristMotion):
 
         used_rrt = False
         ok, _ = segment_free(self.scene, q_ret, q_pre, True, cfg.check_step_rad, cfg.check_step_m)
-        if ok:
-            transit = np.array([q_ret, q_pre])
+        transit = np.array([q_ret, q_pre]) if ok else self._via_lift(q_ret, q_pre)
+        if transit is not None:
+            stages["via_lift"] = float(len(transit) > 2)
         else:
             remaining = max(0.05, cfg.ompl_time_s)
             transit = rrt_connect(
@@ -314,6 +316,33 @@ class BaxterWristMotion(WristMotion):
         plan = MotionPlan(waypoints, traj, duration, planning, used_rrt, stages, q_pre)
         self.last_plan = plan
         return plan
+
+    def _lift(self, q: np.ndarray) -> np.ndarray | None:
+        """`q` with the hand raised by `lift_m` in the base frame, orientation kept (IK warm
+        started at `q`), collision-free with the object."""
+        import pinocchio as pin
+
+        pin.forwardKinematics(self.model.model, self.ik.data, q)
+        m = pin.updateFramePlacement(self.model.model, self.ik.data, self.model.hand_frame).copy()
+        m.translation = m.translation + np.array([0.0, 0.0, self.cfg.lift_m])
+        return self.ik_inner.solve(m, q, accept=lambda c: not self.scene.in_collision(c, True))
+
+    def _via_lift(self, q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray | None:
+        """A transit over the top: up from `q_a`, across, down to `q_b` (each straight in joint
+        space and checked densely, object counted); None if any part collides. Tried before
+        RRT-Connect: most blocked transits are blocked by the object or the table below."""
+        if self.cfg.lift_m <= 0:
+            return None
+        cfg = self.cfg
+        up_a = self._lift(q_a)
+        up_b = self._lift(q_b) if up_a is not None else None
+        if up_a is None or up_b is None:
+            return None
+        path = np.array([q_a, up_a, up_b, q_b])
+        for a, b in itertools.pairwise(path):
+            if not segment_free(self.scene, a, b, True, cfg.check_step_rad, cfg.check_step_m)[0]:
+                return None
+        return path
 
     def _retreat(self, q0: np.ndarray) -> np.ndarray:
         """Where the move leaves the current grasp for: the hand backed off along -z. Right

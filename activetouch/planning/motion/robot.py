@@ -68,7 +68,9 @@ class BaxterMotionConfig:
     check_step_rad: float = 0.02
     # Planned motions keep this clearance (the checks between samples see no thinner contact).
     clearance_m: float = 0.005
-    # OMPL RRT-Connect where straight joint paths collide.
+    # Where the straight transit collides: first over the top (hand raised by this much at
+    # both ends; 0 skips it), then OMPL RRT-Connect.
+    lift_m: float = 0.15
     ompl_time_s: float = 1.0
     # IK.
     ik_tol: float = 1e-4  # norm of the SE(3) log error (m and rad)
