@@ -4,10 +4,13 @@ processes (one twin per process), then fit the model and save it."""
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import dataclasses
+import logging
 import multiprocessing as mp
 import os
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +21,8 @@ from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset
 from activetouch.service.collect import CollectStats, collect_object, pending_poses
 from activetouch.sim.objects import ObjectLibrary
+
+log = logging.getLogger(__name__)
 
 Progress = Callable[[str, int, int], None]  # object, poses done, poses in its grid
 
@@ -32,6 +37,7 @@ def dataset_meta(cfg: Config) -> dict:
         "grid": grid,
         "support_margin_m": cfg.recognition.support_margin_m,
         "sim": dataclasses.asdict(cfg.sim),
+        "table": {"center": cfg.workcell.table_center, "size": cfg.workcell.table_size},
     }
 
 
@@ -49,9 +55,11 @@ def _collect_one(
     spec = ObjectLibrary(library_root).get(name)
     ds = Dataset.open(dataset_path)
 
+    sink = queue if queue is not None else _worker_queue
+
     def report(done: int, total: int) -> None:
-        if queue is not None:
-            queue.put((name, done, total))  # type: ignore[attr-defined]
+        if sink is not None:
+            sink.put((name, done, total))  # type: ignore[attr-defined]
 
     with open_twin(spec, cfg.sim, seed=cfg.sim.seed, workcell=cfg.workcell) as twin:
         return collect_object(
@@ -84,34 +92,100 @@ def collect(
     if not todo:
         return stats
     workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
-    if workers == 1:
-        for n in todo:
-            q = _CallbackQueue(progress)
-            stats.append(_collect_one(str(library.root), str(dataset_path), n, grids[n], cfg, q))
-        return stats
-    # Spawn, not fork: PyBullet and Zenoh keep threads and state that do not survive fork().
-    ctx = mp.get_context("spawn")
-    with ctx.Manager() as manager:
-        queue = manager.Queue()
-        with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            futures = [
-                pool.submit(
-                    _collect_one, str(library.root), str(dataset_path), n, grids[n], cfg, queue
-                )
-                for n in todo
-            ]
-            pending = set(futures)
-            try:
-                while pending:
-                    _, pending = cf.wait(pending, timeout=0.1)
-                    _drain(queue, progress)
-            except KeyboardInterrupt:
-                # Objects not started are dropped; those running save their batches and end.
-                pool.shutdown(wait=False, cancel_futures=True)
-                raise
-            _drain(queue, progress)
-            stats.extend(f.result() for f in futures)
+    with run_lock(dataset_path):
+        if workers == 1:
+            for n in todo:
+                q = _CallbackQueue(progress)
+                root = str(library.root)
+                stats.append(_collect_one(root, str(dataset_path), n, grids[n], cfg, q))
+            return stats
+        stats.extend(_collect_parallel(library, dataset_path, todo, grids, cfg, workers, progress))
     return stats
+
+
+def _collect_parallel(
+    library: ObjectLibrary,
+    dataset_path: Path,
+    todo: list[str],
+    grids: dict[str, GridPoses],
+    cfg: Config,
+    workers: int,
+    progress: Progress | None,
+) -> list[CollectStats]:
+    # Spawn, not fork: PyBullet and Zenoh keep threads and state that do not survive fork().
+    # No Manager process: the progress queue reaches the workers at their start, and every
+    # worker exits when this process dies (even by kill -9), so none collects on unwatched.
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    with cf.ProcessPoolExecutor(
+        workers, mp_context=ctx, initializer=_worker_init, initargs=(queue, os.getpid())
+    ) as pool:
+        futures = [
+            pool.submit(_collect_one, str(library.root), str(dataset_path), n, grids[n], cfg, None)
+            for n in todo
+        ]
+        pending = set(futures)
+        try:
+            while pending:
+                _, pending = cf.wait(pending, timeout=0.1)
+                _drain(queue, progress)
+        except KeyboardInterrupt:
+            # Objects not started are dropped; those running save their batches and end.
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        _drain(queue, progress)
+        return [f.result() for f in futures]
+
+
+_worker_queue: object | None = None  # a worker's progress queue (set by `_worker_init`)
+PARENT_POLL_S = 0.2
+
+
+def _worker_init(queue: object, parent: int) -> None:
+    """In each pool worker: keep the progress queue; exit as soon as the parent is gone."""
+    import threading
+
+    global _worker_queue
+    _worker_queue = queue
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent:  # re-parented: the training process died
+                os._exit(3)
+            time.sleep(PARENT_POLL_S)
+
+    threading.Thread(target=watch, name="activetouch-parent-watch", daemon=True).start()
+
+
+@contextlib.contextmanager
+def run_lock(dataset_path: Path) -> Iterator[None]:
+    """One collection per dataset at a time: a second `train` on the same dataset waits for
+    the first (saying so), rather than writing beside it. The lock is the kernel's (flock),
+    so it goes with the process that held it, however it ended."""
+    import fcntl
+
+    path = Path(dataset_path) / ".collect.lock"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a+") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            f.seek(0)
+            holder = f.read().strip() or "?"
+            log.warning(
+                "another collection (pid %s) is writing to %s; waiting for it to finish",
+                holder,
+                dataset_path,
+            )
+            fcntl.flock(f, fcntl.LOCK_EX)
+        f.seek(0)
+        f.truncate()
+        f.write(str(os.getpid()))
+        f.flush()
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 class _CallbackQueue:
