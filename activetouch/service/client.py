@@ -114,10 +114,14 @@ class DaemonClient(_RemoteNode):
         request: RecognizeRequest,
         on_progress: Callable[[Progress], None] | None = None,
         timeout: float = 600.0,
+        detached: bool = False,
     ) -> RecognizeResult:
         """Run one recognition; `on_progress` sees every grasp of it (on this thread).
 
-        Gives up after `timeout` s (NodeUnavailableError), at once if the daemon goes away."""
+        Gives up after `timeout` s (NodeUnavailableError), at once if the daemon goes away.
+        While it waits, this client holds the liveliness token ``requests/<session_id>``: if
+        the client goes away (closed, killed), the daemon cancels the recognition (it moves a
+        robot nobody watches any more). `detached`: no token, the recognition runs to its end."""
         if request.session_id is None:
             request = msgspec.structs.replace(request, session_id=new_session_id())
         sid = request.session_id
@@ -135,6 +139,9 @@ class DaemonClient(_RemoteNode):
                 q.put((_PROGRESS, msg))
 
         sub = self._session.declare_subscriber(self.keys.progress, _direct(on_sample))
+        token = None
+        if not detached:
+            token = self._session.liveliness().declare_token(self.keys.requester(sid))
         with self._cv:
             self._pending.add(q)
         start = time.monotonic()
@@ -189,6 +196,9 @@ class DaemonClient(_RemoteNode):
                 self._pending.discard(q)
             with suppress(Exception):  # the session may be closed already
                 sub.undeclare()
+            if token is not None:
+                with suppress(Exception):
+                    token.undeclare()
 
     def _remote_error(self, op: str, env: Reply) -> Exception:
         for cls in (BusyError, RecognitionAbortedError):

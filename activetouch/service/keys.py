@@ -25,6 +25,7 @@ widen a subscription or a query to other robots.
 | estop | queryable (daemon) | EStopRequest -> Reply[EStopResult] |
 | sim/place | queryable (simulated devices only) | SimPlaceRequest -> Reply[SimPlaceResult] |
 | alive/<node> | liveliness token | (none) |
+| requests/<session_id> | liveliness token (the requesting client) | (none) |
 """
 
 from __future__ import annotations
@@ -157,6 +158,12 @@ class Keys:
     def alive(self, node: str) -> str:
         """Liveliness token key of node `node` (hand, arm, daemon, ...)."""
         return self._k("alive", validate_node(node))
+
+    def requester(self, session_id: str) -> str:
+        """Liveliness token a client holds while it waits for recognition `session_id`: the
+        daemon cancels the recognition when it drops (ConfigError for an id that is not one
+        key chunk)."""
+        return self._k("requests", _check_chunk(session_id, "session id"))
 
     @property
     def alive_all(self) -> str:

@@ -78,13 +78,16 @@ from activetouch.service.nodes import (
     RemoteArm,
     RemoteHand,
     RemotePlace,
+    _Coalesced,
     _direct,
+    tokens_left,
 )
 from activetouch.service.zenoh_session import undeclare_quietly
 
 log = logging.getLogger("activetouch.daemon")
 
 _STOP = object()
+REQUESTER_CHECK_S = 0.5  # at the start of a recognition: does its requester hold a token?
 
 
 class _Interlock:
@@ -535,7 +538,11 @@ class RecognitionService:
                         f"recognition {job.session_id} waited {waited:.1f} s in the queue, "
                         f"longer than its caller's timeout ({job.budget:g} s); not started"
                     )
-                result = self._recognize(running)
+                watch = self._watch_requester(running)
+                try:
+                    result = self._recognize(running)
+                finally:
+                    undeclare_quietly(watch)
             except Exception as e:
                 error = e
             # Done before the caller hears of it: a status it asks next shows no session.
@@ -578,6 +585,37 @@ class RecognitionService:
                     extra={"session": job.session_id},
                 )
             _reply_error(query, error)
+
+    def _watch_requester(self, running: _Running) -> Any:
+        """Cancel `running` when its requester goes away (its client closed or was killed):
+        the client holds the liveliness token ``requests/<session_id>`` while it waits. A
+        request without one (a plain Zenoh client, or ``recognize --detach``) runs detached.
+        Returns the subscriber to undeclare, or None."""
+        sid = running.job.session_id
+        try:
+            key = self.keys.requester(sid)
+        except ActiveTouchError:
+            return None  # an id that is no key chunk cannot have a token
+        if not tokens_left(self._session, key, timeout=REQUESTER_CHECK_S):
+            log.info(
+                "recognition runs detached (its requester holds no token)", extra={"session": sid}
+            )
+            return None
+
+        def confirm() -> None:
+            if not tokens_left(self._session, key):
+                reason = "its requester is gone"
+                log.warning("requester gone: cancelling", extra={"session": sid})
+                running.interlock.trip(reason)
+                running.cancel.set()
+
+        check = _Coalesced(confirm, "activetouch-requester")
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                check.request()  # confirm off Zenoh's thread: a spoofed drop changes nothing
+
+        return self._session.liveliness().declare_subscriber(key, _direct(on_sample))
 
     def _finish(self, running: _Running) -> None:
         with self._cv:

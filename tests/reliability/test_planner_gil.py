@@ -48,4 +48,4 @@ def test_other_threads_run_while_a_search_runs() -> None:
         last = now
     t.join()
     assert spent[0] > 0.5, "the search was too short to show anything"
-    assert max(gaps) < 0.1, f"the main thread waited {max(gaps):.3f} s behind the search"
+    assert max(gaps) < 0.25, f"the main thread waited {max(gaps):.3f} s behind the search"

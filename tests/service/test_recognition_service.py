@@ -3,6 +3,10 @@ a grasp that is running, and the devices stay stopped until the next recognition
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -29,6 +33,7 @@ def fake_daemon(trained_home: Path):
             "hand.type=fake",
             "hand.close_s=5",  # a slow grasp: the e-stop must not wait for its end
             "arm.type=fake",
+            "session.stable_grasps=1000",  # never confident early: runs take their budget
             f"service.robot={ROBOT}",
             f'service.listen=["{ep}"]',
         ],
@@ -93,3 +98,51 @@ def test_the_next_recognition_clears_the_stop(fake_daemon) -> None:
         )
     assert res.moves == 2
     assert not daemon.devices.hand.stop_latch.is_set
+
+
+CLIENT = """
+import sys
+from activetouch.service.client import open_client
+from activetouch.service.messages import RecognizeRequest
+with open_client([{ep!r}], {robot!r}, timeout=10.0) as c:
+    c.recognize(
+        RecognizeRequest(policy="random", max_moves=50, seed=0, object="cup"),
+        on_progress=lambda ev: print("progress", flush=True),
+        timeout=120.0,
+        detached={detached},
+    )
+print("done", flush=True)
+"""
+
+
+def _client(ep: str, detached: bool) -> subprocess.Popen:
+    script = CLIENT.format(ep=ep, robot=ROBOT, detached=detached)
+    return subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True
+    )
+
+
+@pytest.mark.parametrize("detached", [False, True])
+def test_a_killed_client_cancels_its_recognition(fake_daemon, detached: bool) -> None:
+    daemon, ep = fake_daemon
+    hand = daemon.devices.hand
+    hand.cfg.close_s = 0.3  # 50 grasps: 15 s, far longer than the test waits
+    proc = _client(ep, detached)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == "progress"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(10)
+        t_kill = time.monotonic()
+        with open_client([ep], ROBOT, timeout=10.0) as client:
+            while client.status().session is not None and time.monotonic() - t_kill < 5.0:
+                time.sleep(0.05)
+            gone_after = time.monotonic() - t_kill
+            running = client.status().session is not None
+            if detached:
+                assert running  # it asked to run on
+                client.cancel()
+            else:
+                assert not running and gone_after < 2.0, gone_after
+    finally:
+        if proc.poll() is None:
+            proc.kill()

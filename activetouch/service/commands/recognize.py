@@ -58,6 +58,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="with --connect: seconds the recognition may take (service.request_timeout_s)",
     )
+    p.add_argument(
+        "--detach",
+        action="store_true",
+        help="with --connect: let the recognition run on if this client goes away (by default "
+        "the daemon cancels it when its requester is gone)",
+    )
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -192,6 +198,7 @@ def run_remote(args: argparse.Namespace, cfg: Config, policy: str, console: Cons
                     format_progress(session_progress(ev)), highlight=False
                 ),
                 timeout=timeout,
+                detached=args.detach,
             )
         except KeyboardInterrupt:
             # Do not leave the robot working for nobody.
