@@ -133,6 +133,8 @@ class BaxterWristMotion(WristMotion):
         self.robot_seconds = 0.0
         self.planning_seconds = 0.0
         self.moves = 0
+        self.last_motion_s = 0.0  # the last move_to alone (0 if it did not complete)
+        self.last_planning_s = 0.0
 
     # ---- placement and obstacles -------------------------------------------------------
 
@@ -375,11 +377,14 @@ class BaxterWristMotion(WristMotion):
         """Plan, then execute on the arm (`StoppedError` from the arm passes through). Counts
         planning seconds always and robot seconds for completed motions."""
         t0 = time.perf_counter()
+        self.last_motion_s = 0.0
         try:
             plan = self.plan(pose)
         finally:
-            self.planning_seconds += time.perf_counter() - t0
+            self.last_planning_s = time.perf_counter() - t0
+            self.planning_seconds += self.last_planning_s
         self.arm.execute(plan.trajectory)
+        self.last_motion_s = plan.duration_s
         self.robot_seconds += plan.duration_s
         self.moves += 1
 

@@ -95,7 +95,8 @@ def time_path(
 
 
 def sample(segments: list[Segment], dt: float) -> tuple[np.ndarray, ...]:
-    """(times, positions, velocities, accelerations) every `dt` s and at each segment's end."""
+    """(times, positions, velocities, accelerations) every `dt` s and at each segment's end.
+    (Vectorised per segment: ruckig gives u(t), the joints follow as start + u (end - start).)"""
     if not segments:
         raise ValueError("no segments to sample")
     times, pos, vel, acc = [], [], [], []
@@ -105,14 +106,15 @@ def sample(segments: list[Segment], dt: float) -> tuple[np.ndarray, ...]:
         if k > 0:
             ts = ts[1:] if len(ts) and ts[0] == 0.0 else ts  # the previous end is this start
         ts = np.append(ts, seg.duration)
-        for t in ts:
-            p, v, a = seg.at_time(float(t))
-            times.append(t0 + float(t))
-            pos.append(p)
-            vel.append(v)
-            acc.append(a)
+        at = seg.trajectory.at_time
+        prof = np.array([[v[0] for v in at(float(t))] for t in ts])  # (n, 3): u, du, ddu
+        d = (seg.end - seg.start)[None, :]
+        times.append(t0 + ts)
+        pos.append(seg.start[None, :] + prof[:, :1] * d)
+        vel.append(prof[:, 1:2] * d)
+        acc.append(prof[:, 2:3] * d)
         t0 += seg.duration
-    return np.array(times), np.array(pos), np.array(vel), np.array(acc)
+    return np.concatenate(times), np.vstack(pos), np.vstack(vel), np.vstack(acc)
 
 
 def duration_estimate(

@@ -81,3 +81,32 @@ def test_stopped_arm_raises(motion):
     motion.arm.stop()
     with pytest.raises(StoppedError):
         motion.move_to(grasp([0, 0, 1]))
+
+
+def test_robot_seconds_are_the_executed_durations(motion):
+    motion.move_to(grasp([0, 0, 1]))
+    motion.move_to(grasp([-1, 0, 1]))
+    with pytest.raises(UnreachableError):
+        motion.move_to(Pose([3.0, 0.0, 0.0], [0, 0, 0, 1]))
+    done = motion.arm.trajectories
+    assert motion.moves == len(done) == 2
+    assert motion.robot_seconds == pytest.approx(sum(float(t.times[-1]) for t in done))
+    assert motion.last_motion_s == 0.0  # the failed move took no robot time
+    assert motion.planning_seconds > motion.last_planning_s > 0.0
+
+
+def test_reachable_goals_are_reused_and_the_retreat_is_the_last_pre_grasp(motion):
+    poses = np.array([grasp([0, 0, 1]).as_array(), grasp([-1, 0, 1]).as_array()])
+    assert motion.reachable(poses).all()
+    solved = dict(motion._goals)
+    first = motion.plan(Pose.from_array(poses[0]))
+    # No IK: the pose was solved by reachable(), and that solution is the goal.
+    assert any(np.array_equal(first.goal, g[0]) for g in solved.values())
+    np.testing.assert_array_equal(first.waypoints[-1], first.goal)
+    motion.arm.execute(first.trajectory)
+    second = motion.plan(Pose.from_array(poses[1]))
+    # Leaving a grasp: straight back to the pre-grasp the approach came from.
+    np.testing.assert_array_equal(second.waypoints[1], first.pre_grasp)
+    # A new placement forgets the solutions (they were for the old scene).
+    motion.set_placement(baxter_placement(float(EXTENTS[2]), xy=(0.62, 0.25)))
+    assert not motion._goals and motion.last_plan is None
