@@ -35,3 +35,45 @@ def trained_home(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="session")
 def small_model(trained_home: Path):
     return load_model(paths.default_model(trained_home))
+
+
+FAKE_ROBOT = "fakebot"
+
+
+@pytest.fixture
+def start_fake_daemon(trained_home: Path):
+    """`start(overrides)` -> (Daemon, endpoint): the whole daemon in this process on the fake
+    devices (no physics), on a free loopback port; closed at the end of the test."""
+    from activetouch.service.commands.serve import resolve_mode
+    from activetouch.service.daemon import Daemon, DaemonOptions
+    from activetouch.service.zenoh_session import free_tcp_port
+
+    started: list = []
+
+    def start(overrides: list[str] = ()):  # type: ignore[assignment]
+        ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+        cfg = load_config(
+            None,
+            [
+                "hand.type=fake",
+                "arm.type=fake",
+                f"service.robot={FAKE_ROBOT}",
+                f'service.listen=["{ep}"]',
+                *overrides,
+            ],
+        )
+        opts = DaemonOptions(
+            mode=resolve_mode(None, cfg),
+            role="all",
+            data=trained_home,
+            model_dir=paths.default_model(trained_home),
+            cfg=cfg,
+        )
+        daemon = Daemon(opts)
+        started.append(daemon)
+        daemon.start()
+        return daemon, ep
+
+    yield start
+    for d in started:
+        d.close()

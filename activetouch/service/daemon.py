@@ -94,6 +94,18 @@ def check_service_config(svc: ServiceConfig) -> None:
         raise ConfigError(f"service.zenoh_config: {svc.zenoh_config} does not exist")
 
 
+def exposed_endpoints(svc: ServiceConfig) -> list[str]:
+    """Listen endpoints reachable from other machines and not protected by TLS."""
+    out = []
+    for ep in svc.listen:
+        proto, _, rest = ep.partition("/")
+        host = rest.rsplit(":", 1)[0].strip("[]")
+        local = host in ("localhost", "::1") or host.startswith("127.")
+        if proto != "tls" and not local and proto != "unixsock-stream":
+            out.append(ep)
+    return out
+
+
 def zenoh_settings(svc: ServiceConfig) -> ZenohSettings:
     """The daemon's session: listens on `svc.listen`, connects to `svc.connect`, scouting off."""
     return ZenohSettings(
@@ -152,6 +164,13 @@ class Daemon:
                 "zenoh session open",
                 extra={"listen": ",".join(svc.listen), "connect": ",".join(svc.connect)},
             )
+            for ep in exposed_endpoints(svc):
+                log.warning(
+                    "listening beyond this machine without TLS: anyone who reaches %s can move "
+                    "the robot; use tls/ endpoints with deploy/zenoh-tls-acl.json5 "
+                    "(service.zenoh_config)",
+                    ep,
+                )
             if opts.role in ("all", "nodes"):
                 from activetouch.devices import make_devices
 
@@ -159,7 +178,7 @@ class Daemon:
                 self.nodes = DeviceNodes(self.devices, self.zs.session, svc.robot, svc.state_hz)
             if opts.role in ("all", "daemon"):
                 self.service = RecognitionService(
-                    self.zs.session, svc.robot, opts.mode, opts.cfg, opts.model_dir
+                    self.zs.session, svc.robot, opts.mode, opts.cfg, opts.model_dir, opts.data
                 )
                 self.service.start(svc.node_wait_s)
         except BaseException:

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import queue
 import secrets
 import threading
@@ -38,6 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import zenoh
 
@@ -87,6 +87,7 @@ from activetouch.service.zenoh_session import undeclare_quietly
 log = logging.getLogger("activetouch.daemon")
 
 _STOP = object()
+EXPIRY_SWEEP_S = 0.5  # how often the control thread drops queued requests past their timeout
 REQUESTER_CHECK_S = 0.5  # at the start of a recognition: does its requester hold a token?
 
 
@@ -207,9 +208,36 @@ def _budget(query: zenoh.Query) -> float | None:
         return None
 
 
+# Local paths in texts sent to clients, replaced by placeholders (the log keeps them): a
+# client has no business knowing the robot PC's directories (issue 16, finding 10).
+_REDACT: list[tuple[str, str]] = []
+
+
+def set_redactions(data: Path | None) -> None:
+    """Hide `data` (as "<data>") and the home directory (as "~") in replies."""
+    pairs = []
+    if data is not None:
+        pairs.append((str(Path(data).resolve()), "<data>"))
+        pairs.append((str(data), "<data>"))
+    home = str(Path.home())
+    if home not in ("/", ""):
+        pairs.append((home, "~"))
+    _REDACT[:] = sorted(set(pairs), key=lambda p: -len(p[0]))  # longest first
+
+
+def redact(text: str | None) -> str | None:
+    if not text:
+        return text
+    for path, mark in _REDACT:
+        text = text.replace(path, mark)
+    return text
+
+
 def _reply_error(query: zenoh.Query, exc: BaseException) -> None:
     try:
-        query.reply_err(encode(Reply.failure(exc)), encoding=JSON)
+        env = Reply.failure(exc)
+        env = msgspec.structs.replace(env, error=redact(env.error) or "")
+        query.reply_err(encode(env), encoding=JSON)
     except Exception:
         log.debug("cannot send an error reply", exc_info=True)
 
@@ -224,9 +252,11 @@ class RecognitionService:
         mode: str,
         cfg: Config,
         model_dir: Path,
+        data: Path | None = None,
     ) -> None:
         from activetouch.service.recognize import load_trained
 
+        set_redactions(data)
         self.keys = Keys(robot)
         self.robot, self.mode, self.cfg = robot, mode, cfg
         self.svc = cfg.service
@@ -347,7 +377,11 @@ class RecognitionService:
     # -- control thread: status, cancel, admission of recognize
     def _control_loop(self) -> None:
         while True:
-            item = self._control_q.get()
+            try:
+                item = self._control_q.get(timeout=EXPIRY_SWEEP_S)
+            except queue.Empty:
+                self._expire_queued()
+                continue
             if item is _STOP:
                 return
             key, query, arrived = item
@@ -360,6 +394,27 @@ class RecognitionService:
                     self._answer(query, key, CancelRequest, self._cancel)
             except Exception:
                 log.exception("control thread: handling a query failed", extra={"key": key})
+
+    def _expire_queued(self) -> None:
+        """Answer queued requests whose caller's timeout has passed now, not when they reach
+        the front (their caller has given up; the error says why)."""
+        now = time.monotonic()
+        with self._cv:
+            expired = [
+                j for j in self._pending if j.budget is not None and now - j.arrived > j.budget
+            ]
+            for job in expired:
+                self._pending.remove(job)
+        for job in expired:
+            log.info("queued recognition expired", extra={"session": job.session_id})
+            with job.query as q:
+                _reply_error(
+                    q,
+                    NodeUnavailableError(
+                        f"recognition {job.session_id} waited {now - job.arrived:.1f} s in the "
+                        f"queue, longer than its caller's timeout ({job.budget:g} s); not started"
+                    ),
+                )
 
     def _answer(self, query: zenoh.Query, key: str, request_type: type[Message], fn: Any) -> None:
         with query:
@@ -475,7 +530,7 @@ class RecognitionService:
     def status(self) -> Status:
         seen = self.alive.snapshot()
         nodes: dict[str, NodeHealth] = {
-            DAEMON_NODE: NodeHealth(alive=True, detail=f"pid {os.getpid()}")
+            DAEMON_NODE: NodeHealth(alive=True, detail="serving")
         }
         for name in self.node_names:
             since = self.alive.since(name)
@@ -503,11 +558,11 @@ class RecognitionService:
             robot=self.robot,
             nodes=nodes,
             model_loaded=self.model is not None,
-            model=self.model_desc,
+            model=redact(self.model_desc),
             session=summary,
             uptime_s=time.monotonic() - self._t0,
             mode=self.mode,
-            model_error=self.model_error,
+            model_error=redact(self.model_error),
             queued=queued,
         )
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -501,6 +502,25 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
     return "".join(parts)
 
 
+def private_cache_dir() -> Path:
+    """``/tmp/activetouch-<uid>``, made 0700 by this user; if someone else made it first (a
+    predictable name in a shared directory), or others may write to it, a fresh private one
+    instead: a planted URDF must never be loaded."""
+    root = Path(tempfile.gettempdir()) / f"activetouch-{os.getuid()}"
+    try:
+        root.mkdir(mode=0o700, exist_ok=True)
+        st = root.lstat()
+        if (
+            not stat.S_ISDIR(st.st_mode)
+            or st.st_uid != os.getuid()
+            or st.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
+        ):
+            raise PermissionError(f"{root} is not a private directory of this user")
+    except OSError:
+        return Path(tempfile.mkdtemp(prefix="activetouch-"))
+    return root
+
+
 def urdf_file(
     geom: ReflexGeometry | None = None, cache_dir: Path | None = None, sensor_links: bool = False
 ) -> Path:
@@ -509,7 +529,7 @@ def urdf_file(
     Written atomically (temp file + rename), so concurrent worlds and processes are safe."""
     text = build_urdf(geom, sensor_links)
     digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    root = cache_dir or Path(tempfile.gettempdir()) / f"activetouch-{os.getuid()}"
+    root = cache_dir or private_cache_dir()
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"reflex_{digest}.urdf"
     if not path.exists() or path.read_text() != text:

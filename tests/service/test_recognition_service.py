@@ -9,48 +9,19 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
-from activetouch import paths
-from activetouch.config import load_config
 from activetouch.service.client import RecognitionAbortedError, open_client
-from activetouch.service.commands.serve import resolve_mode
-from activetouch.service.daemon import Daemon, DaemonOptions
 from activetouch.service.messages import RecognizeRequest
-from activetouch.service.zenoh_session import free_tcp_port
 
 ROBOT = "fakebot"
 
 
 @pytest.fixture
-def fake_daemon(trained_home: Path):
-    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    cfg = load_config(
-        None,
-        [
-            "hand.type=fake",
-            "hand.close_s=5",  # a slow grasp: the e-stop must not wait for its end
-            "arm.type=fake",
-            "session.stable_grasps=1000",  # never confident early: runs take their budget
-            f"service.robot={ROBOT}",
-            f'service.listen=["{ep}"]',
-        ],
-    )
-    opts = DaemonOptions(
-        mode=resolve_mode(None, cfg),
-        role="all",
-        data=trained_home,
-        model_dir=paths.default_model(trained_home),
-        cfg=cfg,
-    )
-    daemon = Daemon(opts)
-    daemon.start()
-    try:
-        yield daemon, ep
-    finally:
-        daemon.close()
+def fake_daemon(start_fake_daemon):
+    # A slow grasp (the e-stop must not wait for its end); never confident early.
+    return start_fake_daemon(["hand.close_s=5", "session.stable_grasps=1000"])
 
 
 def test_estop_reaches_the_hand_during_a_grasp(fake_daemon) -> None:
