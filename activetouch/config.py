@@ -96,6 +96,11 @@ class GridConfig:
     # would be two observations under one action. Add 0.8 (spherical) as its own grid if wanted.
     preshape: float = 0.0
     min_wrist_height_m: float = 0.03  # hand frame origin above the table top
+    # Shift of the hand along its own x axis so the approach axis passes between the pointer
+    # fingers (x = +0.06) and the thumb (x = -0.03) instead of at the hand origin: 0.015 centres
+    # it. 0 (the authors' layout) leaves the pointer fingers 6 cm off a narrow object
+    # (docs/objects.md, "Small objects").
+    center_offset_m: float = 0.0
     # "shared": every object is grasped at the union of all training objects' grids, so each
     # class has data at every pose the planner can choose at test time (the object, hence its
     # grid, is unknown then). "per_object": each object at its own grid only (the paper).

@@ -80,3 +80,34 @@ def test_object_grids_follow_the_layout():
     assert shared["a"] is shared["b"]
     own = object_grids(ext, GridConfig(layout="per_object"))
     np.testing.assert_array_equal(own["a"].poses, training_grid(ext["a"], GridConfig()).poses)
+
+
+def test_center_offset_puts_the_object_between_fingers_and_thumb() -> None:
+    """With `center_offset_m` the object centre lies on the hand's approach axis shifted to
+    hand x = +offset (between the pointer fingers at +0.06 and the thumb at -0.03), at the
+    same distance along the hand's z as without it."""
+    from activetouch.config import GridConfig
+    from activetouch.planning.grid import training_grid
+
+    ext = np.array([0.1, 0.12, 0.08])
+    base = training_grid(ext, GridConfig())
+    moved = training_grid(ext, GridConfig(center_offset_m=0.015))
+    # The hand moves by the offset, so a pose may drop below min_wrist_height: compare by id.
+    assert set(moved.pose_ids) <= set(base.pose_ids) and len(moved) > 0.8 * len(base)
+    where = {int(p): i for i, p in enumerate(base.pose_ids)}
+    for pid, p1 in zip(moved.pose_ids, moved.poses, strict=True):
+        p0 = base.poses[where[int(pid)]]
+        R = Rotation.from_quat(p1[3:]).as_matrix()
+        centre_in_hand = R.T @ (np.zeros(3) - p1[:3])
+        centre_in_hand0 = Rotation.from_quat(p0[3:]).as_matrix().T @ (-p0[:3])
+        np.testing.assert_allclose(centre_in_hand[:2], [0.015, 0.0], atol=1e-9)
+        np.testing.assert_allclose(centre_in_hand[2], centre_in_hand0[2], atol=1e-9)
+
+
+def test_small_object_overrides_load() -> None:
+    from activetouch.config import load_config
+    from activetouch.planning.grid import SMALL_OBJECT_GRID, small_object_overrides
+
+    cfg = load_config(None, small_object_overrides())
+    for k, v in SMALL_OBJECT_GRID.items():
+        assert getattr(cfg.grid, k) == v

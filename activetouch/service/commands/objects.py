@@ -48,6 +48,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         default="coacd",
         help="convex decomposition for concave meshes (default: coacd)",
     )
+    pa.add_argument(
+        "--no-probe",
+        action="store_true",
+        help="skip the test grasps that count how often the hand feels fewer than 3 contacts",
+    )
     pa.set_defaults(func=_add)
 
     pr = osub.add_parser(
@@ -137,7 +142,28 @@ def _add(args: argparse.Namespace) -> int:
         highlight=False,
         soft_wrap=True,
     )
+    if not args.no_probe:
+        _probe(spec, args, err)
     return 0
+
+
+def _probe(spec: ObjectSpec, args: argparse.Namespace, err: Console) -> None:
+    """Grasp the new object at its own training grid in the twin and report how often the
+    hand feels fewer than 3 contacts (with what to do when that is often)."""
+    from activetouch.config import load_config
+    from activetouch.sim.contact_probe import advice, probe_object
+
+    cfg = load_config(args.config, args.overrides)
+    with err.status(f"test grasps of {spec.name} at its training grid ..."):
+        share = probe_object(spec, cfg)
+    Console().print(
+        f"{spec.name}: {share.share:.0%} of {share.grasps} test grasps felt fewer than 3 contacts "
+        f"(mean {share.mean_contacts:.1f} contacts, {share.unreachable} poses unreachable)",
+        highlight=False,
+        soft_wrap=True,
+    )
+    for line in advice([share], cfg):
+        err.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
 
 
 def _dataset(root: Path, name: str, console: Console):

@@ -11,8 +11,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from activetouch import paths
-from activetouch.config import load_config
+from activetouch.config import Config, load_config
 from activetouch.errors import ConfigError
+from activetouch.sim.contact_probe import ContactShare, advice, dataset_shares
 from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
 
 
@@ -85,12 +86,23 @@ def train(
         model = fit_and_save(dataset, names, cfg, out)
         t_fit = time.perf_counter() - t1
 
+    shares = {s.name: s for s in contact_shares(dataset, names, cfg)}
     table = Table(title="training")
-    for col in ("object", "new grasps", "unreachable", "already stored"):
+    for col in ("object", "new grasps", "unreachable", "already stored", "< 3 contacts"):
         table.add_column(col, justify="right" if col != "object" else "left")
     for s in sorted(stats, key=lambda s: names.index(s.name)):
-        table.add_row(s.name, str(s.grasped), str(s.skipped), str(s.already_done))
+        sh = shares[s.name]
+        few = f"{sh.share:.0%} of {sh.grasps}"
+        table.add_row(
+            s.name,
+            str(s.grasped),
+            str(s.skipped),
+            str(s.already_done),
+            f"[yellow]{few}[/]" if sh.high else few,
+        )
     console.print(table)
+    for line in advice(list(shares.values()), cfg):
+        console.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
     if any(s.skipped for s in stats):
         console.print(
             "unreachable: poses where the open hand (fingers flat, ~0.38 m across) would meet "
@@ -104,6 +116,16 @@ def train(
     )
     console.print(f"model written to {out}")
     return out
+
+
+def contact_shares(dataset: Path, names: list[str], cfg: Config) -> list[ContactShare]:
+    """Per object, the share of its training grasps (at its current grid) with fewer than 3
+    contacts."""
+    from activetouch.recognition.dataset import Dataset
+    from activetouch.service.training import grid_pose_ids
+
+    ds = Dataset.open(dataset)
+    return dataset_shares(ds, names, grid_pose_ids(ds, names, cfg))
 
 
 def run(args: argparse.Namespace) -> int:
