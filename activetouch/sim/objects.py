@@ -58,6 +58,21 @@ PAPER_REAL_OBJECTS: tuple[str, ...] = (
     "glass_real",
 )
 BUILTIN_OBJECTS: tuple[str, ...] = PAPER_SIM_OBJECTS + PAPER_REAL_OBJECTS
+GENERATED_SETS: tuple[str, ...] = ("hard",)  # generated on request (sim/library/)
+
+
+def generated_set(name: str) -> tuple[str, ...]:
+    """The object names of a generated set (`GENERATED_SETS`)."""
+    if name != "hard":
+        raise DataError(f"no generated set {name!r}; sets: {', '.join(GENERATED_SETS)}")
+    from activetouch.sim.library.hard import HARD_OBJECTS
+
+    return HARD_OBJECTS
+
+
+def _generated_objects() -> tuple[str, ...]:
+    return tuple(n for s in GENERATED_SETS for n in generated_set(s))
+
 
 # Bump when a builtin's geometry changes: libraries regenerate builtins of an older version.
 GENERATOR_VERSION = 1
@@ -919,7 +934,8 @@ class ObjectLibrary:
             for p in self.root.iterdir()
             if p.is_dir() and not p.name.startswith(".") and (p / "object.json").is_file()
         }
-        return [n for n in BUILTIN_OBJECTS if n in have] + sorted(have - set(BUILTIN_OBJECTS))
+        ordered = BUILTIN_OBJECTS + _generated_objects()
+        return [n for n in ordered if n in have] + sorted(have - set(ordered))
 
     def __contains__(self, name: str) -> bool:
         return (self.root / name / "object.json").is_file()
@@ -946,7 +962,7 @@ class ObjectLibrary:
         names (re)generated. Safe to call from several processes at once."""
         wanted = list(BUILTIN_OBJECTS if names is None else names)
         for n in wanted:
-            if n not in BUILDERS:
+            if n not in BUILDERS and n not in _generated_objects():
                 raise DataError(f"no builtin object {n!r}; builtins: {', '.join(BUILTIN_OBJECTS)}")
         todo = [n for n in wanted if not self._builtin_current(n)]
         if not todo:
@@ -959,6 +975,10 @@ class ObjectLibrary:
                 self._install(n, lambda d, n=n: _build_builtin(n, d))
                 made.append(n)
         return made
+
+    def ensure_set(self, name: str) -> list[str]:
+        """Generate a generated set (e.g. "hard") like the builtins; returns the names made."""
+        return self.ensure_builtins(generated_set(name))
 
     def _builtin_current(self, name: str) -> bool:
         f = self.root / name / "object.json"
@@ -993,7 +1013,7 @@ class ObjectLibrary:
                 f"invalid object name {name!r}: use 1-64 letters, digits, '_' or '-', "
                 "starting with a letter or digit"
             )
-        if name in BUILTIN_OBJECTS:
+        if name in BUILTIN_OBJECTS or name in _generated_objects():
             raise ActiveTouchError(f"{name!r} is a builtin object and cannot be replaced")
         if name in self and not overwrite:
             raise ActiveTouchError(
@@ -1019,7 +1039,7 @@ class ObjectLibrary:
         return self.get(name)
 
     def remove(self, name: str) -> None:
-        if name in BUILTIN_OBJECTS:
+        if name in BUILTIN_OBJECTS or name in _generated_objects():
             raise ActiveTouchError(f"{name!r} is a builtin object and cannot be removed")
         if name not in self:
             raise DataError(f"unknown object {name!r} in {self.root}")
@@ -1061,16 +1081,23 @@ class ObjectLibrary:
 
 
 def _build_builtin(name: str, d: Path) -> None:
-    built = shape_to_meshes(BUILDERS[name]())
+    if name in BUILDERS:
+        shape, set_name, rgba = BUILDERS[name](), None, COLOURS[name]
+    else:
+        from activetouch.sim.library import hard
+
+        shape, set_name, rgba = hard.HARD_BUILDERS[name][1](), hard.HARD_SET, hard.colour(name)
+    built = shape_to_meshes(shape)
     write_obj(d / "visual.obj", built.verts, built.faces)
     meta = {
         "name": name,
         "source": "builtin",
-        "set": "sim" if name in PAPER_SIM_OBJECTS else "real",
+        "set": set_name or ("sim" if name in PAPER_SIM_OBJECTS else "real"),
         "scale": 1.0,
         "generator_version": GENERATOR_VERSION,
         "decomposition": "lathe",
-        "rgba": list(COLOURS[name]),
+        "rgba": list(rgba),
+        **({"family": hard.family(name)} if set_name else {}),
         # A builtin's source is its generated surface: the hash pins the geometry.
         "sha256": _sha256(d / "visual.obj"),
         # The body's axis of revolution (off the bbox centre when there is a handle/spout).

@@ -99,11 +99,14 @@ def _row(spec: ObjectSpec) -> dict:
         "scale": spec.scale,
         "visual_mesh": str(spec.visual_mesh),
         "sha256": spec.meta.get("sha256"),
+        "family": spec.meta.get("family"),
     }
 
 
 def _list(args: argparse.Namespace) -> int:
     lib = _library(args)
+    with Console(stderr=True).status("generating the hard library (33 objects, once) ..."):
+        lib.ensure_set("hard")
     specs = lib.specs()
     if args.json:
         sys.stdout.write(json.dumps([_row(s) for s in specs], indent=2) + "\n")

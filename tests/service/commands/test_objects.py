@@ -43,8 +43,15 @@ def _list(data: Path, capsys: pytest.CaptureFixture[str]) -> list[dict]:
 
 def test_list_generates_builtins_on_first_use(first_list: tuple[Path, str]) -> None:
     rows = json.loads(first_list[1])
-    assert [r["name"] for r in rows] == list(BUILTIN_OBJECTS)
-    assert ObjectLibrary(first_list[0]).names() == list(BUILTIN_OBJECTS)
+    from activetouch.sim.library.hard import HARD_OBJECTS
+
+    assert [r["name"] for r in rows] == list(BUILTIN_OBJECTS + HARD_OBJECTS)
+    assert ObjectLibrary(first_list[0]).names() == list(BUILTIN_OBJECTS + HARD_OBJECTS)
+    hard = [r for r in rows if r["set"] == "hard"]
+    assert len(hard) >= 30 and len({r["family"] for r in hard}) >= 6
+    for r in hard:  # 5-25 cm, and every family has look-alikes
+        assert min(r["extents"]) >= 0.05 and max(r["extents"]) <= 0.25, r
+    assert all(sum(x["family"] == r["family"] for x in hard) >= 2 for r in hard)
     cup = rows[0]
     assert cup["set"] == "sim" and cup["source"] == "builtin" and cup["parts"] > 1
     assert len(cup["extents"]) == 3 and min(cup["extents"]) > 0.05
