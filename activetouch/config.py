@@ -182,7 +182,10 @@ class ServiceConfig:
     state_hz: float = 20.0  # hand state / arm joint states publication rate
     # Recognitions that may wait while one runs (FIFO); 0: a second request gets a busy error.
     max_queued: int = 0
-    shutdown_timeout_s: float = 3.0  # wait for the running recognition to stop on SIGTERM
+    shutdown_timeout_s: float = 2.0  # wait for the running recognition to stop on SIGTERM
+    # Longest a plan may run: then it ends with the best path it has (the largest request
+    # allowed, 20000 simulations at horizon 50, takes seconds; the default plan milliseconds).
+    max_plan_s: float = 2.0
     # The twin's nodes sleep this long per motion (move, grasp), to emulate a real robot's
     # timing in demos and tests of cancel / shutdown; 0 runs the twin flat out.
     sim_motion_delay_s: float = 0.0

@@ -21,6 +21,10 @@ class PlanningError(ActiveTouchError):
     """The planner cannot produce a plan, e.g. no unvisited pose remains."""
 
 
+class PlanningInterruptedError(PlanningError):
+    """A plan was interrupted (cancel, e-stop, shutdown, time budget) before it had a path."""
+
+
 class MessageError(ActiveTouchError):
     """A message received over Zenoh is malformed: not JSON, wrong schema version, bad field."""
 

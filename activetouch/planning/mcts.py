@@ -51,7 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from activetouch.errors import PlanningError
+from activetouch.errors import PlanningError, PlanningInterruptedError
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.recognition.classifiers import (
     _Z_CLIP,
@@ -479,9 +479,12 @@ def _run_simulations(
     recs: tuple,
     mark: np.ndarray,
     counters: np.ndarray,
+    stop: np.ndarray,
 ) -> tuple:
-    """Run the simulations; returns (nodes used, edge records used). `used` and `hist` are
-    modified during a simulation and restored after it."""
+    """Run the simulations; returns (nodes used, edge records used, simulations run). `used`
+    and `hist` are modified during a simulation and restored after it. Another thread may
+    set `stop[0]` (the search runs without the GIL): the search ends after the simulation
+    it is in."""
     (
         edge_ptr,
         edge_action,
@@ -537,7 +540,11 @@ def _run_simulations(
     node_full[0] = False
     n_nodes = 1
 
+    done = 0
     for _sim in range(n_sims):
+        if stop[0] != 0:
+            break
+        done += 1
         node = 0
         node_vis[0] += 1
         depth = 0
@@ -624,7 +631,7 @@ def _run_simulations(
             if path_out[i] >= 0:
                 _add_outcome(out_ptr, out_bin, path_out[i], hist, -1.0)
         S[:] = S0
-    return n_nodes, n_recs[0]
+    return n_nodes, n_recs[0], done
 
 
 @njit(cache=True, nogil=True)
@@ -861,6 +868,20 @@ class TreeSearch:
         deg = np.diff(model.edge_ptr)
         self.max_degree = int(deg.max()) if deg.size else 0
         self._tree: Tree | None = None
+        # Set by `interrupt()` from any thread; read by the compiled loop between simulations.
+        self._stop = np.zeros(1, dtype=np.int64)
+
+    def interrupt(self) -> None:
+        """End the running search (and any later one) after its current simulation; it returns
+        the best path of what it has, or raises `PlanningInterruptedError` if it has none yet."""
+        self._stop[0] = 1
+
+    def clear_interrupt(self) -> None:
+        self._stop[0] = 0
+
+    @property
+    def interrupted(self) -> bool:
+        return bool(self._stop[0])
 
     def _tree_for(self, simulations: int) -> Tree:
         if self._tree is None or self._tree.capacity < simulations:
@@ -925,7 +946,7 @@ class TreeSearch:
         tree = self._tree_for(simulations)
         nodes, recs = tree.node_arrays(), tree.rec_arrays()
         counters = np.zeros(3, dtype=np.int64)
-        n_nodes, n_recs = _run_simulations(
+        n_nodes, n_recs, done = _run_simulations(
             self._m,
             self._k,
             np.int64(pose),
@@ -943,9 +964,12 @@ class TreeSearch:
             recs,
             tree.mark,
             counters,
+            self._stop,
         )
         path = np.empty(horizon, dtype=np.int64)
-        k = int(_extract_path(np.int64(horizon), nodes, recs, path))
+        k = int(_extract_path(np.int64(horizon), nodes, recs, path)) if done else 0
+        if k == 0 and self.interrupted:
+            raise PlanningInterruptedError(f"planning interrupted after {done} simulations")
         path = path[:k]
         edges = tree.rec_edge[path].copy()
         step_values = tree.rec_q[path].copy()
@@ -959,7 +983,7 @@ class TreeSearch:
             step_visits=tree.rec_n[path].copy(),
             n_nodes=int(n_nodes),
             n_edge_records=int(n_recs),
-            simulations=simulations,
+            simulations=int(done),
             observation_sources=(int(counters[0]), int(counters[1]), int(counters[2])),
             tree=tree if keep_tree else None,
         )

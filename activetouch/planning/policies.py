@@ -90,6 +90,12 @@ class Policy:
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         raise NotImplementedError
 
+    def interrupt(self) -> None:
+        """End a running `plan` soon, from any thread (a policy that plans at once ignores it)."""
+
+    def clear_interrupt(self) -> None:
+        """Let later plans run to their end again."""
+
 
 class TreePolicy(Policy):
     """MCTS with horizon `horizon` and `simulations` simulations per tree."""
@@ -133,6 +139,12 @@ class TreePolicy(Policy):
                 f"planner.objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}"
             )
         self.search = TreeSearch(model, kernel, anytime=objective == "anytime")
+
+    def interrupt(self) -> None:
+        self.search.interrupt()
+
+    def clear_interrupt(self) -> None:
+        self.search.clear_interrupt()
 
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         res = self.search.search(

@@ -83,6 +83,7 @@ def check_service_config(svc: ServiceConfig) -> None:
         "max_queued",
         "shutdown_timeout_s",
         "sim_motion_delay_s",
+        "max_plan_s",
     )
     for name in positive:
         if not getattr(svc, name) > 0:

@@ -148,19 +148,43 @@ class _GuardedWrist(WristMotion):
 
 
 class _TimedPolicy(Policy):
-    """A policy that keeps the planning time since it was last asked (per-move figures)."""
+    """A policy that keeps the planning time since it was last asked (per-move figures), ends
+    a plan that runs past `budget_s` with the best path it has, and can be interrupted for
+    good (cancel, e-stop, shutdown) from another thread."""
 
-    def __init__(self, inner: Policy) -> None:
+    def __init__(self, inner: Policy, budget_s: float | None = None) -> None:
         self.inner = inner
         self.name = inner.name
+        self.budget_s = budget_s
         self._pending = 0.0
+        self._ended = False  # interrupted for good: no plan runs any more
+        self._lock = threading.Lock()
 
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         t = time.perf_counter()
+        timer = None
+        if self.budget_s:
+            timer = threading.Timer(self.budget_s, self._over_budget)
+            timer.daemon = True
+            timer.start()
         try:
             return self.inner.plan(state, rng)
         finally:
+            if timer is not None:
+                timer.cancel()
+            with self._lock:
+                if not self._ended:
+                    self.inner.clear_interrupt()  # the budget applies to one plan
             self._pending += time.perf_counter() - t
+
+    def _over_budget(self) -> None:
+        log.info("plan over its time budget: taking its best path so far")
+        self.inner.interrupt()
+
+    def interrupt(self) -> None:
+        with self._lock:
+            self._ended = True
+            self.inner.interrupt()
 
     def take(self) -> float:
         v, self._pending = self._pending, 0.0
@@ -184,6 +208,7 @@ class _Running:
     interlock: _Interlock
     started: float  # wall clock
     move: int = 0
+    policy: Policy | None = None  # interrupted by cancel / e-stop / shutdown
     place_s: float = 0.0  # for the log
     session_s: float = 0.0
 
@@ -509,6 +534,8 @@ class RecognitionService:
             cur = self._running
             if cur is not None and req.session_id in (None, cur.job.session_id):
                 cur.cancel.set()
+                if cur.policy is not None:
+                    cur.policy.interrupt()
                 sid = cur.job.session_id
             else:
                 for job in self._pending:
@@ -663,6 +690,8 @@ class RecognitionService:
                 log.warning("requester gone: cancelling", extra={"session": sid})
                 running.interlock.trip(reason)
                 running.cancel.set()
+                if running.policy is not None:
+                    running.policy.interrupt()
 
         check = _Coalesced(confirm, "activetouch-requester")
 
@@ -712,7 +741,11 @@ class RecognitionService:
             horizon=req.horizon or cfg.planner.horizon,
             simulations=req.simulations or cfg.planner.simulations,
         )
-        policy = _TimedPolicy(make_policy(req.policy, planner_cfg, model.observation, self._kernel))
+        policy = _TimedPolicy(
+            make_policy(req.policy, planner_cfg, model.observation, self._kernel),
+            self.svc.max_plan_s,
+        )
+        running.policy = policy
         session_cfg = dataclasses.replace(cfg.session, max_moves=req.max_moves)
         rng = np.random.default_rng(job.seed)
 
@@ -806,6 +839,8 @@ class RecognitionService:
         if cur is not None:
             cur.interlock.trip(reason)
             cur.cancel.set()
+            if cur.policy is not None:
+                cur.policy.interrupt()
         for job in dropped:
             with job.query as q:
                 _reply_error(

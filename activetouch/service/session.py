@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from activetouch.config import SessionConfig
-from activetouch.errors import ConfigError, UnreachableError
+from activetouch.errors import ConfigError, PlanningInterruptedError, UnreachableError
 from activetouch.interfaces import Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.planning.motion.base import WristMotion
@@ -210,8 +210,15 @@ class RecognitionSession:
                 res.stop_reason = "skips"
                 break
             tp = time.perf_counter()
-            plan: Plan = self.policy.plan(state, self.rng)
-            res.planning_s += time.perf_counter() - tp
+            try:
+                plan: Plan = self.policy.plan(state, self.rng)
+            except PlanningInterruptedError:
+                if not self.cancel.is_set():
+                    raise
+                res.stop_reason = "cancelled"  # cancel / e-stop ended the plan it was in
+                break
+            finally:
+                res.planning_s += time.perf_counter() - tp
             if plan.exhausted:
                 res.stop_reason = "exhausted"
                 break

@@ -278,3 +278,44 @@ def test_sigterm_exits_within_5_s_during_the_largest_plan(trained_home, tmp_path
 def _try_progress(client, req, seen) -> None:
     with contextlib.suppress(Exception):  # the daemon's goodbye is an error reply
         client.recognize(req, on_progress=lambda _ev: seen.set(), timeout=120.0)
+
+
+def test_cancel_ends_the_largest_plan_at_once_and_plans_keep_their_budget(
+    start_fake_daemon,
+) -> None:
+    daemon, ep = start_fake_daemon(["session.stable_grasps=1000", "service.max_plan_s=0.5"])
+    hand = daemon.devices.hand
+    req = RecognizeRequest(
+        policy="tree",
+        max_moves=50,
+        seed=4,
+        object="cup",
+        simulations=MAX_SIMULATIONS,
+        horizon=MAX_HORIZON,
+    )
+    progress: list = []
+    with open_client([ep], FAKE_ROBOT, timeout=10.0) as client:
+        out: dict = {}
+
+        def run() -> None:
+            try:
+                out["r"] = client.recognize(req, on_progress=progress.append, timeout=120.0)
+            except Exception as e:
+                out["e"] = e
+            out["t"] = time.perf_counter()
+
+        t = threading.Thread(target=run)
+        t.start()
+        while len(progress) < 3 and t.is_alive():
+            time.sleep(0.005)
+        # Every plan so far kept to its 0.5 s budget (the largest takes seconds unbounded).
+        assert all(p.planning_s < 1.0 for p in progress[1:]), [p.planning_s for p in progress]
+        closes = hand.closes
+        while hand.closes == closes and t.is_alive():
+            time.sleep(0.002)  # a grasp just ended: the next plan is running
+        time.sleep(0.05)
+        t0 = time.perf_counter()
+        client.cancel()
+        t.join(30.0)
+    assert out["r"].stop_reason == "cancelled"
+    assert out["t"] - t0 < 1.0, f"cancel took {out['t'] - t0:.2f} s"
