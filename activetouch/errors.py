@@ -33,6 +33,10 @@ class MessageError(ActiveTouchError):
         self.field = field  # dotted path of the offending field, when known
 
 
+class TrackingError(ActiveTouchError):
+    """The measured arm did not follow the commanded trajectory (a joint lagged or blocked)."""
+
+
 class NodeUnavailableError(ActiveTouchError):
     """A remote node (hand, arm, daemon) did not answer in time or its liveliness token dropped."""
 

@@ -264,6 +264,18 @@ class Arm(abc.ABC):
     def clear_stop(self) -> None:
         """Allow motion again after `stop()`."""
 
+    def estop(self) -> None:
+        """Emergency stop: `stop()`, plus the robot's own e-stop where it has one (Baxter's
+        ``robot/set_super_stop``, which disables the motors until a reset)."""
+        self.stop()
+
+    def enable(self) -> None:  # noqa: B027 - optional: most arms have no enabled state
+        """Enable the motors, for arms that have such a state (Baxter); others are always
+        enabled. Never called by the service on its own unless configured to."""
+
+    def disable(self) -> None:  # noqa: B027 - optional, as enable
+        """Disable the motors (the arm goes limp or holds on its brakes, as the robot does)."""
+
     def __enter__(self) -> Arm:
         self.connect()
         return self

@@ -18,6 +18,8 @@ widen a subscription or a query to other robots.
 | arm/execute | queryable | ExecuteRequest -> Reply[None] |
 | arm/stop | queryable (served at once, beside a running motion) | Empty -> Reply[None] |
 | arm/clear_stop | queryable | Empty -> Reply[None] |
+| arm/estop | queryable (served at once) | Empty -> Reply[None] |
+| arm/enable, arm/disable | queryable | Empty -> Reply[None] |
 | recognize | queryable (daemon) | RecognizeRequest -> Reply[RecognizeResult] |
 | progress | publication (daemon) | Progress |
 | cancel | queryable (daemon) | CancelRequest -> Reply[CancelResult] |
@@ -127,6 +129,18 @@ class Keys:
     @property
     def arm_clear_stop(self) -> str:
         return self._k("arm", "clear_stop")
+
+    @property
+    def arm_estop(self) -> str:
+        return self._k("arm", "estop")
+
+    @property
+    def arm_enable(self) -> str:
+        return self._k("arm", "enable")
+
+    @property
+    def arm_disable(self) -> str:
+        return self._k("arm", "disable")
 
     # recognition daemon
     @property

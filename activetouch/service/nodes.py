@@ -406,6 +406,11 @@ class ArmNode(_ServedNode):
             ),
             "stop": _Op(k.arm_stop, Empty, lambda _r: arm.stop(), fast=True),
             "clear_stop": _Op(k.arm_clear_stop, Empty, lambda _r: arm.clear_stop(), fast=True),
+            # The robot's own e-stop where it has one (stop() otherwise): at once, beside a
+            # motion. Enabling is explicit, queued like a motion.
+            "estop": _Op(k.arm_estop, Empty, lambda _r: arm.estop(), fast=True),
+            "enable": _Op(k.arm_enable, Empty, lambda _r: arm.enable()),
+            "disable": _Op(k.arm_disable, Empty, lambda _r: arm.disable()),
         }
         self._start()
 
@@ -772,6 +777,15 @@ class RemoteArm(_RemoteDevice, WristMotion):
 
     def clear_stop(self) -> None:
         self._call("clear_stop", self.keys.arm_clear_stop, Empty(), None)
+
+    def estop(self) -> None:
+        self._call("estop", self.keys.arm_estop, Empty(), None)
+
+    def enable(self) -> None:
+        self._call("enable", self.keys.arm_enable, Empty(), None, self.motion_timeout)
+
+    def disable(self) -> None:
+        self._call("disable", self.keys.arm_disable, Empty(), None, self.motion_timeout)
 
 
 class RemotePlace(_RemoteNode):

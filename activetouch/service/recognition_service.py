@@ -860,7 +860,7 @@ class RecognitionService:
         errors: list[str] = []
         arm_stopped = hand_opened = False
         try:
-            self.arm.stop()
+            self.arm.estop()  # stop, and the robot's own e-stop where it has one
             arm_stopped = True
         except Exception as e:
             errors.append(f"arm stop: {e}")

@@ -166,6 +166,16 @@ class FakeArm(Arm, WristMotion):
     def clear_stop(self) -> None:
         self.calls.append(("clear_stop",))
 
+    def estop(self) -> None:
+        self.calls.append(("estop",))
+        self.stop_event.set()
+
+    def enable(self) -> None:
+        self.calls.append(("enable",))
+
+    def disable(self) -> None:
+        self.calls.append(("disable",))
+
 
 @pytest.fixture
 def endpoint() -> str:
@@ -529,3 +539,10 @@ def test_alive_nodes_tracks_tokens(node_session: ZenohSession, client_session, h
     assert alive.snapshot() == {"hand": False, "arm": True}
     assert alive.since("hand") is not None and alive.since("gripper") is None
     assert arm_node.busy is None
+
+
+def test_arm_estop_enable_disable_reach_the_device(remote_arm: RemoteArm, arm: FakeArm) -> None:
+    remote_arm.enable()
+    remote_arm.disable()
+    remote_arm.estop()
+    assert [c[0] for c in arm.calls] == ["enable", "disable", "estop"]

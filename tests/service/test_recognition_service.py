@@ -117,3 +117,11 @@ def test_a_killed_client_cancels_its_recognition(fake_daemon, detached: bool) ->
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_arm_cli_enables_through_the_arm_node(start_fake_daemon, capsys) -> None:
+    from activetouch.service.cli import main as cli_main
+
+    _daemon, ep = start_fake_daemon()
+    assert cli_main(["arm", "enable", "--connect", ep, "--robot", ROBOT]) == 0
+    assert "enabled" in capsys.readouterr().out

@@ -32,11 +32,11 @@ import numpy as np
 from activetouch.devices import ArmConfig
 from activetouch.drivers.baxter import ros1
 from activetouch.errors import (
-    ActiveTouchError,
     ConfigError,
     MessageError,
     NodeUnavailableError,
     StoppedError,
+    TrackingError,
     UnreachableError,
 )
 from activetouch.interfaces import Arm, JointLimits, JointState, JointTrajectory, StopLatch
@@ -50,10 +50,6 @@ log = logging.getLogger(__name__)
 LOWER = (-1.70167993878, -2.147, -3.05417993878, -0.05, -3.059, -1.57079632679, -3.059)
 UPPER = (1.70167993878, 1.047, 3.05417993878, 2.618, 3.059, 2.094, 3.059)
 VELOCITY = (1.5, 1.5, 1.5, 1.5, 4.0, 4.0, 4.0)
-
-
-class TrackingError(ActiveTouchError):
-    """The measured arm did not follow the commanded trajectory (a joint lagged or blocked)."""
 
 
 @dataclass

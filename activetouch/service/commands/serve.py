@@ -77,6 +77,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         add_common_options(q)
         q.set_defaults(func=fn)
 
+    a = sub.add_parser(
+        "arm",
+        help="enable or disable the arm's motors (robots that have such a state, e.g. Baxter)",
+        description="Talks to the arm node directly (on the robot PC: the nodes' keys are not "
+        "reachable remotely under the shipped access control). The daemon never enables the "
+        "arm by itself.",
+    )
+    a.add_argument("action", choices=("enable", "disable"))
+    _client_options(a, serving=False)
+    add_common_options(a)
+    a.set_defaults(func=run_arm)
+
 
 def _client_options(p: argparse.ArgumentParser, serving: bool) -> None:
     p.add_argument("--robot", default=None, help="robot name (default: service.robot)")
@@ -237,3 +249,32 @@ def run_estop(args: argparse.Namespace) -> int:
             highlight=False,
         )
     return 0 if res.arm_stopped and res.hand_opened else 1
+
+
+def run_arm(args: argparse.Namespace) -> int:
+    from activetouch.service.nodes import RemoteArm
+    from activetouch.service.zenoh_session import ZenohSession, ZenohSettings
+
+    cfg = service_config(args)
+    svc = cfg.service
+    timeout = args.timeout if args.timeout is not None else svc.node_timeout_s
+    if not timeout > 0:
+        raise ConfigError(f"--timeout must be > 0, got {timeout}")
+    settings = ZenohSettings.client(
+        *client_endpoints(args, cfg),
+        config_file=paths_or_none(svc.zenoh_config),
+    )
+    with ZenohSession(settings) as zs:
+        arm = zs.closing(
+            RemoteArm(zs.session, svc.robot, timeout, motion_timeout=svc.motion_timeout_s)
+        )
+        arm.connect()
+        getattr(arm, args.action)()
+    Console().print(f"arm of robot {svc.robot}: {args.action}d", highlight=False)
+    return 0
+
+
+def paths_or_none(path: str):  # -> Path | None
+    from pathlib import Path
+
+    return Path(path) if path else None
