@@ -163,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
 
     print(f"largest request: simulations {MAX_SIMULATIONS}, horizon {MAX_HORIZON}")
     print(f"e-stop answered and in force: {fmt(figs['estop_s'])}  (target < 100 ms)")
-    print(f"cancel to reply (waits for the running plan): {fmt(figs['cancel_s'])}")
+    print(f"cancel to reply (the running plan is interrupted): {fmt(figs['cancel_s'])}")
     print(f"SIGTERM to exit: {term:.2f} s  (target <= 5 s)")
     return 0
 
