@@ -80,8 +80,22 @@ class ReflexTakktileConfig(HandConfig):
     arrival_tolerance_rad: float = 0.05
     move_timeout_s: float = 3.0
     warn_interval_s: float = 5.0
+    # "twin": no hardware; an in-process byte-level emulator on loopback UDP, backed by the
+    # shared twin world the arm moves in (twin_emulated.py). The driver still speaks UDP and
+    # its own codec. Empty: a real hand at the addresses above.
+    emulate: str = ""
+    emulate_loss: float = 0.0  # emulate = "twin": fraction of state packets the board drops
+
+    @property
+    def simulated(self) -> bool:  # type: ignore[override]
+        # An emulated hand stands in for the robot: recognitions place the object (sim/place).
+        return self.emulate == "twin"
 
     def check(self) -> None:
+        if self.emulate not in ("", "twin"):
+            raise ConfigError(f"hand.emulate: {self.emulate!r} is not one of '', 'twin'")
+        if not 0.0 <= self.emulate_loss < 1.0:
+            raise ConfigError("hand.emulate_loss: must be in [0, 1)")
         for name in ("state_listen", "command_to"):
             try:
                 parse_address(getattr(self, name), f"hand.{name}")
@@ -120,6 +134,10 @@ class ReflexTakktileConfig(HandConfig):
 
     def make(self, ctx: DeviceContext) -> Hand:
         self.check()
+        if self.emulate == "twin":
+            from activetouch.drivers.reflex.twin_emulated import make_twin_emulated
+
+            return make_twin_emulated(self, ctx)
         return ReflexTakktileHand(self)
 
 
@@ -419,6 +437,9 @@ class ReflexTakktileHand(Hand):
         cfg = self.cfg
         self.stop_latch.check("guarded close")
         r = self._latest_or_wait()
+        # Decide the first step from a packet that arrived after this call: the arm may have
+        # stopped only just now, and a finger already touching must not move.
+        r = self._wait_reading(r.seq, cfg.stream_timeout_s)
         self._send(codec.encode_set_mode([codec.MODE_POSITION] * 4))
         preshape_target = r.motor[3] if self._preshape_target is None else self._preshape_target
         active = np.ones(N_FINGERS, dtype=bool)

@@ -8,9 +8,19 @@ re-runs a contact step in substeps): a free finger splits its spool proximal = s
 distal = k * proximal; once its proximal pads feel something, the proximal holds and the
 distal takes the rest; once its distal pads feel something, the servo stalls `press_rad`
 further on.
+
+Sharing the world with an arm (`hand.emulate = "twin"`): the arm also poses the world (and
+opens its fingers to check a pose), so the emulator thread must not touch it while the arm
+moves. With `gated=True` the world is read only inside `live()` (the driver's commands, during
+which the arm is still: the nodes serialise commands, a session is sequential); between
+commands the pads repeat their last reading.
 """
 
 from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -24,6 +34,7 @@ class TwinFingers:
         threshold: float | None = None,
         press_rad: float = 0.05,
         spool_limit: float = 3.6,
+        gated: bool = False,
     ) -> None:
         from activetouch.sim.hand import SimHand
 
@@ -36,6 +47,22 @@ class TwinFingers:
         self.blocked = np.zeros(3, dtype=bool)
         self.hold = np.zeros(3)
         self.stall = np.full(3, spool_limit)
+        self.lock = threading.Lock()  # one world access at a time; `live` flips under it
+        self.is_live = not gated
+        self.last = np.zeros(38)
+        self.reads = 0  # world readings made (tests: the gate holds)
+
+    @contextmanager
+    def live(self) -> Iterator[None]:
+        """Let the emulator read the world inside this block (the caller keeps the arm still).
+        Taking the lock waits out a reading in progress, so none runs outside the block."""
+        with self.lock:
+            self.is_live = True
+        try:
+            yield
+        finally:
+            with self.lock:
+                self.is_live = False
 
     def joints(self, spool: np.ndarray, preshape: float) -> tuple[np.ndarray, np.ndarray]:
         from activetouch.sim.reflex_urdf import coupled_joints
@@ -49,7 +76,14 @@ class TwinFingers:
         )
 
     def forces(self, spool: np.ndarray, preshape: float) -> np.ndarray:
-        spool = np.asarray(spool, dtype=np.float64)
+        with self.lock:
+            if not self.is_live:
+                return self.last.copy()
+            self.last = self._read(np.asarray(spool, dtype=np.float64), float(preshape))
+            self.reads += 1
+            return self.last.copy()
+
+    def _read(self, spool: np.ndarray, preshape: float) -> np.ndarray:
         prox, dist = self.joints(spool, preshape)
         self.world.set_hand(float(preshape), prox, dist)
         p = np.asarray(self.hand.state().pressures, dtype=np.float64)
@@ -61,7 +95,7 @@ class TwinFingers:
                 self.stall[f] = min(self.spool_limit, spool[f] + self.press_rad)
             if spool[f] < self.stall[f] - 2 * self.press_rad:  # opened again
                 self.stall[f] = self.spool_limit
-        return np.maximum(p, 0.0)
+        return p  # may dip below 0 with noise: the board adds its zero offsets
 
     def stall_spool(self) -> np.ndarray:
         return self.stall.copy()
