@@ -165,9 +165,10 @@ def check_workcell(workcell: WorkcellConfig, model: ArmModel) -> None:
 
 
 @functools.lru_cache(maxsize=64)
-def library_hull(root: str, name: str) -> np.ndarray | None:
+def library_hull(root: str, name: str, extents: tuple[float, ...]) -> np.ndarray | None:
     """Hull points (object frame) of a library object's collision meshes; None if it is not a
-    library object (a primitive, a body placed by hand)."""
+    library object (a primitive, a body placed by hand). `extents` only keys the cache (an
+    object re-imported under the same name has other extents)."""
     try:
         import trimesh
 
@@ -194,8 +195,10 @@ class ObjectShapes:
         obj = world.object
         if obj is None:
             return None, None, None
-        hull = None if self.library_root is None else library_hull(self.library_root, obj.name)
-        key = (obj.body, obj.name, tuple(obj.extents), tuple(obj.origin))
+        size = tuple(float(v) for v in obj.extents)
+        root = self.library_root
+        hull = None if root is None else library_hull(root, obj.name, size)
+        key = (obj.body, obj.name, size, tuple(obj.origin))
         return key, hull, obj.extents.copy()
 
 
