@@ -1,11 +1,15 @@
 """The recognition service: admission, one recognition at a time (with an optional queue),
 cancel, status and the emergency stop, on the daemon's Zenoh keys (docs/api.md).
 
-It reaches the hand and the arm *only* through Zenoh (`RemoteHand`, `RemoteArm`), whether the
-nodes live in the same process or another one. Threads: Zenoh callbacks only enqueue queries.
-A control thread answers ``status`` and ``cancel`` and admits ``recognize`` requests
-(validation, busy check); a runner thread runs one recognition at a time and holds its query
-until the final reply; an e-stop thread answers ``estop`` (it must not wait behind anything).
+In the daemon it reaches the hand and the arm *only* through Zenoh (`RemoteHand`,
+`RemoteArm`), whether the nodes live in the same process or another one; everything it uses
+(devices, progress publication, requesters' tokens) comes in `ServiceLinks`, so tests run it
+in memory on the devices themselves (`local_links`) with queries handed to `submit`.
+
+Threads: Zenoh callbacks only enqueue queries. A control thread answers ``status`` and
+``cancel`` and admits ``recognize`` requests (validation, busy check); a runner thread runs one
+recognition at a time and holds its query until the final reply; an e-stop thread answers
+``estop`` (it must not wait behind anything).
 
 One recognition at a time: while one runs, a new request is refused with a `BusyError`
 reply, unless ``service.max_queued`` > 0, in which case up to that many wait in a FIFO queue
@@ -33,7 +37,7 @@ import secrets
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -267,17 +271,118 @@ def _reply_error(query: zenoh.Query, exc: BaseException) -> None:
         log.debug("cannot send an error reply", exc_info=True)
 
 
+@dataclass
+class ServiceLinks:
+    """What the service reaches the robot and its clients through. Over Zenoh (`zenoh_links`)
+    in the daemon; in memory (`local_links`) in tests, so the admission, queue, cancel and
+    e-stop logic runs without Zenoh or subprocesses."""
+
+    hand: Hand
+    arm: Any  # WristMotion (move_to) with stop, clear_stop, estop
+    place: Any = None  # (object, seed) -> SimPlaceResult; None: a real robot
+    alive: Any = None  # snapshot() / since(node): the nodes' liveliness; None: always alive
+    publish: Any = None  # bytes -> None: a progress sample
+    # (session_id, on_gone) -> handle to undeclare, or None: the requester holds no token
+    watch_requester: Any = None
+    closers: list = field(default_factory=list)
+
+
+def zenoh_links(session: zenoh.Session, robot: str, mode: str, svc: Any) -> ServiceLinks:
+    """The devices through their Zenoh nodes, progress on `progress`, requesters' tokens."""
+    keys = Keys(robot)
+    timeouts = {"timeout": svc.node_timeout_s, "motion_timeout": svc.motion_timeout_s}
+    alive = AliveNodes(session, robot)
+    hand = RemoteHand(session, robot, **timeouts)
+    arm = RemoteArm(session, robot, **timeouts)
+    sim = RemotePlace(session, robot, svc.motion_timeout_s) if mode == "sim" else None
+    publisher = session.declare_publisher(keys.progress, encoding=JSON)
+
+    def watch(sid: str, on_gone: Any) -> Any:
+        try:
+            key = keys.requester(sid)
+        except ActiveTouchError:
+            return None  # an id that is no key chunk cannot have a token
+        if not tokens_left(session, key, timeout=REQUESTER_CHECK_S):
+            return None
+
+        def confirm() -> None:
+            if not tokens_left(session, key):
+                on_gone()
+
+        check = _Coalesced(confirm, "activetouch-requester")
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                check.request()  # confirm off Zenoh's thread: a spoofed drop changes nothing
+
+        return session.liveliness().declare_subscriber(key, _direct(on_sample))
+
+    return ServiceLinks(
+        hand=hand,
+        arm=arm,
+        place=sim.place if sim is not None else None,
+        alive=alive,
+        publish=publisher.put,
+        watch_requester=watch,
+        closers=[
+            alive.close,
+            hand.close,
+            arm.close,
+            *([sim.close] if sim else []),
+            lambda: undeclare_quietly(publisher),
+        ],
+    )
+
+
+class _LocalArm(WristMotion):
+    """A device's wrist motion plus its arm's stops, as the service uses them."""
+
+    def __init__(self, devices: Any) -> None:
+        self.devices = devices
+
+    def move_to(self, pose: Pose) -> None:
+        self.devices.wrist.set_placement(self.devices.placement())
+        self.devices.wrist.move_to(pose)
+
+    def stop(self) -> None:
+        self.devices.arm.stop()
+
+    def estop(self) -> None:
+        self.devices.arm.estop()
+
+    def clear_stop(self) -> None:
+        self.devices.arm.clear_stop()
+
+
+def local_links(devices: Any) -> ServiceLinks:
+    """The devices of `make_devices` called directly (no Zenoh): for tests and tools."""
+    place = None
+    if devices.simulated and devices.ctx.place is not None:
+
+        def place(obj: str, seed: int | None) -> Any:
+            from activetouch.service.messages import SimPlaceRequest
+
+            return devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
+
+    return ServiceLinks(hand=devices.hand, arm=_LocalArm(devices), place=place)
+
+
 class RecognitionService:
-    """Serves ``recognize``, ``cancel``, ``status``, ``estop``; publishes ``progress``."""
+    """Serves ``recognize``, ``cancel``, ``status``, ``estop``; publishes ``progress``.
+
+    Over Zenoh, `start` declares the daemon's queryables on `session`; without a session
+    (tests), hand queries to `submit` — any object with ``payload``, ``parameters``,
+    ``reply``, ``reply_err`` and ``with`` support does."""
 
     def __init__(
         self,
-        session: zenoh.Session,
+        session: zenoh.Session | None,
         robot: str,
         mode: str,
         cfg: Config,
         model_dir: Path,
         data: Path | None = None,
+        links: ServiceLinks | None = None,
     ) -> None:
         from activetouch.service.recognize import load_trained
 
@@ -311,17 +416,14 @@ class RecognitionService:
         self._closing = False
         self._control_q: queue.SimpleQueue = queue.SimpleQueue()
         self._estop_q: queue.SimpleQueue = queue.SimpleQueue()
-        self._objs: list[Any] = []  # subscribers / clients to close
         self._queryables: list[Any] = []
         self._token: Any = None
-        self._publisher: Any = None
-        svc = self.svc
-        self.alive = AliveNodes(session, robot)
-        timeouts = {"timeout": svc.node_timeout_s, "motion_timeout": svc.motion_timeout_s}
-        self.hand = RemoteHand(session, robot, **timeouts)
-        self.arm = RemoteArm(session, robot, **timeouts)
-        self.sim = RemotePlace(session, robot, svc.motion_timeout_s) if mode == "sim" else None
-        self._objs += [self.alive, self.hand, self.arm, *([self.sim] if self.sim else [])]
+        if links is None:
+            if session is None:
+                raise ValueError("a RecognitionService needs a Zenoh session or its links")
+            links = zenoh_links(session, robot, mode, self.svc)
+        self.links = links
+        self.hand, self.arm = links.hand, links.arm
         self._threads = [
             threading.Thread(target=self._control_loop, name="activetouch-control", daemon=True),
             threading.Thread(target=self._runner_loop, name="activetouch-runner", daemon=True),
@@ -359,24 +461,21 @@ class RecognitionService:
         """Serve; wait up to `wait_nodes` s for the nodes; then declare the daemon's token."""
         try:
             k = self.keys
-            self._publisher = self._session.declare_publisher(k.progress, encoding=JSON)
             for t in self._threads:
                 t.start()
-            for key, target in (
-                (k.recognize, self._control_q),
-                (k.cancel, self._control_q),
-                (k.status, self._control_q),
-                (k.estop, self._estop_q),
-            ):
+            if self._session is None:
+                return  # in memory: queries come through `submit`
+            for key in (k.recognize, k.cancel, k.status, k.estop):
                 self._queryables.append(
-                    self._session.declare_queryable(key, _direct(self._enqueuer(key, target)))
+                    self._session.declare_queryable(key, _direct(self._enqueuer(key)))
                 )
             deadline = time.monotonic() + wait_nodes
-            for node in (self.hand, self.arm, self.sim):
-                if node is None:
+            for node in (self.hand, self.arm):
+                wait = getattr(node, "wait_alive", None)
+                if wait is None:
                     continue
                 try:
-                    node.wait_alive(max(0.0, deadline - time.monotonic()))
+                    wait(max(0.0, deadline - time.monotonic()))
                 except NodeUnavailableError as e:
                     log.warning("node not there yet", extra={"node": node.node, "error": str(e)})
             # Last: a client that sees the token can use every queryable.
@@ -392,10 +491,15 @@ class RecognitionService:
     def healthy(self) -> bool:
         return all(t.is_alive() for t in self._threads)
 
-    def _enqueuer(self, key: str, target: queue.SimpleQueue) -> Any:
+    def submit(self, key: str, query: Any) -> None:
+        """Take a query on one of the daemon's keys (the e-stop on its own thread)."""
+        target = self._estop_q if key == self.keys.estop else self._control_q
+        target.put((key, query, time.monotonic()))
+
+    def _enqueuer(self, key: str) -> Any:
         def on_query(query: zenoh.Query) -> None:
             # Zenoh's thread: hand the query over, never block or call Zenoh here.
-            target.put((key, query, time.monotonic()))
+            self.submit(key, query)
 
         return on_query
 
@@ -555,12 +659,11 @@ class RecognitionService:
         return CancelResult(cancelled=True, session_id=sid)
 
     def status(self) -> Status:
-        seen = self.alive.snapshot()
-        nodes: dict[str, NodeHealth] = {
-            DAEMON_NODE: NodeHealth(alive=True, detail="serving")
-        }
+        alive = self.links.alive
+        seen = alive.snapshot() if alive is not None else dict.fromkeys(self.node_names, True)
+        nodes: dict[str, NodeHealth] = {DAEMON_NODE: NodeHealth(alive=True, detail="serving")}
         for name in self.node_names:
-            since = self.alive.since(name)
+            since = (alive.since(name) if alive is not None else None) or 0.0
             if name not in seen:
                 nodes[name] = NodeHealth(alive=False, detail="never seen")
             elif seen[name]:
@@ -672,34 +775,23 @@ class RecognitionService:
         """Cancel `running` when its requester goes away (its client closed or was killed):
         the client holds the liveliness token ``requests/<session_id>`` while it waits. A
         request without one (a plain Zenoh client, or ``recognize --detach``) runs detached.
-        Returns the subscriber to undeclare, or None."""
+        Returns the handle to undeclare, or None."""
         sid = running.job.session_id
-        try:
-            key = self.keys.requester(sid)
-        except ActiveTouchError:
-            return None  # an id that is no key chunk cannot have a token
-        if not tokens_left(self._session, key, timeout=REQUESTER_CHECK_S):
+        watch = self.links.watch_requester
+
+        def gone() -> None:
+            log.warning("requester gone: cancelling", extra={"session": sid})
+            running.interlock.trip("its requester is gone")
+            running.cancel.set()
+            if running.policy is not None:
+                running.policy.interrupt()
+
+        handle = watch(sid, gone) if watch is not None else None
+        if handle is None:
             log.info(
                 "recognition runs detached (its requester holds no token)", extra={"session": sid}
             )
-            return None
-
-        def confirm() -> None:
-            if not tokens_left(self._session, key):
-                reason = "its requester is gone"
-                log.warning("requester gone: cancelling", extra={"session": sid})
-                running.interlock.trip(reason)
-                running.cancel.set()
-                if running.policy is not None:
-                    running.policy.interrupt()
-
-        check = _Coalesced(confirm, "activetouch-requester")
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            if sample.kind == zenoh.SampleKind.DELETE:
-                check.request()  # confirm off Zenoh's thread: a spoofed drop changes nothing
-
-        return self._session.liveliness().declare_subscriber(key, _direct(on_sample))
+        return handle
 
     def _finish(self, running: _Running) -> None:
         with self._cv:
@@ -718,11 +810,11 @@ class RecognitionService:
         sid = job.session_id
         wc = cfg.workcell
         placement = workcell_placement(wc)
-        if self.sim is not None:
+        if self.links.place is not None:
             running.interlock.check("placing the object")
             assert req.object is not None
             t_place = time.perf_counter()
-            placed = self.sim.place(req.object, job.seed)
+            placed = self.links.place(req.object, job.seed)
             running.place_s = time.perf_counter() - t_place
             # A simulated robot stands the object on the workcell's table.
             placement = dataclasses.replace(
@@ -764,10 +856,10 @@ class RecognitionService:
                 pose_id=ev.pose_id,
                 elapsed_s=max(0.0, ev.elapsed_s),
             )
-            pub = self._publisher
-            if pub is not None:
+            publish = self.links.publish
+            if publish is not None:
                 try:
-                    pub.put(encode(msg))
+                    publish(encode(msg))
                 except Exception as e:  # a lost progress sample must not end the recognition
                     log.warning("publishing progress failed", extra={"error": str(e)})
 
@@ -901,13 +993,10 @@ class RecognitionService:
             q.put(_STOP)
             if t.is_alive() and t is not threading.current_thread():
                 t.join(1.0)
-        for obj in reversed(self._objs):
+        while self.links.closers:
+            close = self.links.closers.pop()
             try:
-                obj.close()
+                close()
             except Exception:
                 log.debug("close failed", exc_info=True)
-        self._objs.clear()
-        if self._publisher is not None:
-            undeclare_quietly(self._publisher)
-            self._publisher = None
         log.info("recognition service closed")

@@ -250,8 +250,7 @@ def test_sigterm_exits_within_5_s_during_the_largest_plan(trained_home, tmp_path
         tmp_path / "daemon.log",
     )
     try:
-        with open_client([ep], FAKE_ROBOT, timeout=10.0) as client:
-            client.connect(60.0)
+        with open_client([ep], FAKE_ROBOT, timeout=10.0, wait=90.0) as client:
             req = RecognizeRequest(
                 policy="tree",
                 max_moves=50,
