@@ -277,8 +277,11 @@ class TakktileEmulator:
 
     def _packet(self) -> bytes:
         cfg = self.cfg
-        prox, _ = self.fingers.joints(self.spool, self.preshape)
         force = self.fingers.forces(self.spool, self.preshape)
+        # Reading the pads may find the finger stalled short of where it was sent (it met
+        # the object): the servo is where it stalled.
+        self.spool = np.minimum(self.spool, self.fingers.stall_spool())
+        prox, _ = self.fingers.joints(self.spool, self.preshape)
         raw = self.offsets + force
         if cfg.noise_std > 0:
             raw = raw + self.np_rng.normal(0.0, cfg.noise_std, 38)

@@ -47,6 +47,9 @@ class TwinFingers:
         self.blocked = np.zeros(3, dtype=bool)
         self.hold = np.zeros(3)
         self.stall = np.full(3, spool_limit)
+        self.touching = np.zeros(3, dtype=bool)
+        self.prev_spool = np.zeros(3)
+        self.skin_depth, self.stall_depth = cfg.skin_depth_m, cfg.stall_depth_m
         self.lock = threading.Lock()  # one world access at a time; `live` flips under it
         self.is_live = not gated
         self.last = np.zeros(38)
@@ -83,18 +86,80 @@ class TwinFingers:
             self.reads += 1
             return self.last.copy()
 
-    def _read(self, spool: np.ndarray, preshape: float) -> np.ndarray:
+    def _pose(self, spool: np.ndarray, preshape: float) -> tuple[np.ndarray, np.ndarray]:
+        """Pose the world's hand at these spools: (38,) pressures, (3, 2) deepest
+        penetration of each finger's proximal and distal link."""
         prox, dist = self.joints(spool, preshape)
-        self.world.set_hand(float(preshape), prox, dist)
-        p = np.asarray(self.hand.state().pressures, dtype=np.float64)
+        self.world.set_hand(preshape, prox, dist)
+        p = np.asarray(self.hand.state().pressures, dtype=np.float64)  # flushes, then reads
+        c = self.world.hand_contacts()
+        links = self.world.links
+        depth = np.zeros((3, 2))
+        for link, d in zip(c.link.tolist(), c.depth.tolist(), strict=True):
+            for f in range(3):
+                if link == links.proximal[f]:
+                    depth[f, 0] = max(depth[f, 0], d)
+                elif link == links.distal[f]:
+                    depth[f, 1] = max(depth[f, 1], d)
+        return p, depth
+
+    def _settle(
+        self, spool: np.ndarray, preshape: float, fingers: list[int], col: int, allowed
+    ) -> np.ndarray:
+        """The largest spools of `fingers` between the last reading's and `spool` at which
+        their link `col` (0 proximal, 1 distal) is no deeper than `allowed` (3 halvings, as
+        the twin's close finds where its finger settles)."""
+        lo = np.minimum(self.prev_spool[fingers], spool[fingers])
+        hi = spool[fingers].copy()
+        for _ in range(3):
+            mid = (lo + hi) / 2
+            trial = spool.copy()
+            trial[fingers] = mid
+            _, d = self._pose(trial, preshape)
+            ok = d[fingers, col] <= allowed[fingers]
+            lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
+        return lo
+
+    def _read(self, spool: np.ndarray, preshape: float) -> np.ndarray:
+        spool = np.minimum(spool, self.stall)
+        for f in range(3):  # opened again: the finger is free
+            if spool[f] < self.stall[f] - 2 * self.press_rad:
+                self.stall[f] = self.spool_limit
+            if spool[f] <= self.prev_spool[f] - 0.1 or spool[f] < 0.05:
+                self.touching[f] = False
+        p, depth = self._pose(spool, preshape)
         over = p[:27].reshape(3, 9) > self.threshold
+        # The twin's limits on pressing in: before a sensed contact a link may go
+        # `stall_depth_m` into something (an unsensed part), after it only `skin_depth_m`.
+        allowed = np.where(self.touching | over.any(axis=1), self.skin_depth, self.stall_depth)
+        hit = [
+            f
+            for f in range(3)
+            if not self.blocked[f] and (over[f, :5].any() or depth[f, 0] > allowed[f])
+        ]
+        if hit:
+            # The skin is far stiffer than the flexure: the proximal holds where it meets
+            # something (settled no deeper than allowed), the distal takes the rest.
+            deep = [f for f in hit if depth[f, 0] > allowed[f]]
+            held = spool.copy()
+            if deep:
+                held[deep] = self._settle(spool, preshape, deep, 0, allowed)
+            hold, _ = self.joints(held, preshape)
+            self.blocked[hit] = True
+            self.hold[hit] = hold[hit]
+            p, depth = self._pose(spool, preshape)
+        bad = [f for f in range(3) if depth[f, 1] > allowed[f] and spool[f] > self.prev_spool[f]]
+        if bad:
+            # The distal cannot go that deep: the servo stalls short of it.
+            spool[bad] = self.stall[bad] = self._settle(spool, preshape, bad, 1, allowed)
+            p, _ = self._pose(spool, preshape)
+        if hit or bad:
+            over = p[:27].reshape(3, 9) > self.threshold
         for f in range(3):
-            if over[f, :5].any() and not self.blocked[f]:
-                self.blocked[f], self.hold[f] = True, prox[f]
             if over[f, 5:].any() and self.stall[f] >= self.spool_limit:
                 self.stall[f] = min(self.spool_limit, spool[f] + self.press_rad)
-            if spool[f] < self.stall[f] - 2 * self.press_rad:  # opened again
-                self.stall[f] = self.spool_limit
+        self.touching |= over.any(axis=1)
+        self.prev_spool = spool.copy()
         return p  # may dip below 0 with noise: the board adds its zero offsets
 
     def stall_spool(self) -> np.ndarray:
