@@ -154,6 +154,19 @@ class SimConfig:
     wrist_penetration_tol_m: float = 0.002  # deeper hand/object or hand/table overlap: unreachable
     execute_step_m: float = 0.01  # collision-check spacing along executed wrist trajectories
     execute_step_rad: float = 0.05
+    # The real robot's errors, for evaluation (docs/benchmark.md; 0 = none, the default). A
+    # twin made for seed s stands the object off the workcell's placement by a uniform draw of
+    # up to +-placement_error_m in x and y and +-placement_error_deg about z, while the wrist,
+    # the session and the planner believe the nominal placement.
+    placement_error_m: float = 0.0
+    placement_error_deg: float = 0.0
+    # Tactile faults (activetouch/recognition/faults.py): extra pressure noise (sensor units)
+    # at every reading, sensors dead (read 0) and stuck (read over threshold) for the run, and
+    # the per-grasp probability that a quiet sensor reports a spurious contact.
+    fault_noise_std: float = 0.0
+    fault_dead: int = 0
+    fault_stuck: int = 0
+    fault_spurious: float = 0.0
 
 
 @dataclass

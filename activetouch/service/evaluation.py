@@ -16,11 +16,63 @@ from typing import Any
 import numpy as np
 from scipy.stats import binomtest
 
-from activetouch.config import Config
+from activetouch.config import Config, SimConfig
 from activetouch.errors import ConfigError
 from activetouch.recognition.distances import inner_product_distance
 
 STABLE_RUN = 3  # "3-in-a-row correct", as in the paper's real-robot table
+EXECUTORS = ("local", "ray")
+# The real robot's errors the twin can add (SimConfig; docs/benchmark.md), as eval reports them.
+ERROR_SETTINGS = (
+    "placement_error_m",
+    "placement_error_deg",
+    "fault_noise_std",
+    "fault_dead",
+    "fault_stuck",
+    "fault_spurious",
+)
+SENSOR_FAULT_KEYS = {
+    "noise": "fault_noise_std",
+    "dead": "fault_dead",
+    "stuck": "fault_stuck",
+    "spurious": "fault_spurious",
+}
+
+
+def robot_errors(sim: SimConfig) -> dict[str, float]:
+    """The error settings that are on (empty: the nominal twin)."""
+    return {k: getattr(sim, k) for k in ERROR_SETTINGS if getattr(sim, k)}
+
+
+def error_overrides(placement: str | None, faults: str | None) -> list[str]:
+    """`--set` overrides from eval's flags: `--placement-error M[,DEG]` (metres, degrees) and
+    `--sensor-faults noise=S,dead=N,stuck=N,spurious=P`."""
+    out: list[str] = []
+    if placement:
+        parts = [p.strip() for p in placement.split(",")]
+        try:
+            vals = [float(p) for p in parts]
+        except ValueError:
+            vals = []
+        if len(vals) not in (1, 2) or any(not np.isfinite(v) or v < 0 for v in vals):
+            raise ConfigError(
+                f"--placement-error: expected METRES[,DEGREES] >= 0 (e.g. 0.02,15), got "
+                f"{placement!r}"
+            )
+        out.append(f"sim.placement_error_m={vals[0]!r}")
+        if len(vals) == 2:
+            out.append(f"sim.placement_error_deg={vals[1]!r}")
+    if faults:
+        for item in faults.split(","):
+            key, _, value = item.partition("=")
+            key = key.strip()
+            if key not in SENSOR_FAULT_KEYS or not value.strip():
+                raise ConfigError(
+                    f"--sensor-faults: expected e.g. noise=5,dead=2,stuck=1,spurious=0.02 "
+                    f"(keys {', '.join(SENSOR_FAULT_KEYS)}), got {item!r}"
+                )
+            out.append(f"sim.{SENSOR_FAULT_KEYS[key]}={value.strip()}")
+    return out
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -93,6 +145,21 @@ def run_job(job: Job) -> dict[str, Any]:
         job.cfg,
         max_moves=job.max_moves,
     )
+    errors: dict[str, Any] = {}
+    if robot_errors(job.cfg.sim):
+        from activetouch.recognition.faults import draw_faulty_sensors
+        from activetouch.sim.twin import placement_error, sensor_faults
+
+        # The same draws the twin made from this seed: what this run really had.
+        err = placement_error(job.cfg.sim, job.seed)
+        faulty = draw_faulty_sensors(sensor_faults(job.cfg.sim), job.seed)
+        errors = {
+            "placement_dx_m": err.dx,
+            "placement_dy_m": err.dy,
+            "placement_yaw_deg": float(np.degrees(err.yaw_rad)),
+            "dead_sensors": faulty.dead.tolist(),
+            "stuck_sensors": faulty.stuck.tolist(),
+        }
     # Distance of the histogram after each grasp to the true class's training histogram.
     distances: list[float | None] = []
     counts = np.zeros(model.spec.n_bins)
@@ -123,6 +190,8 @@ def run_job(job: Job) -> dict[str, Any]:
         "elapsed_s": res.elapsed_s,
         "distance_to_true": distances,
         "pose_ids": res.pose_ids,
+        "mean_contacts": float(np.mean([len(c) for c in res.contacts])) if res.contacts else 0.0,
+        "errors": errors,
         # Not in results.json (bulky); used for figures.
         "_contacts": [c.tolist() for c in res.contacts],
         "_counts": counts.tolist(),
@@ -130,8 +199,18 @@ def run_job(job: Job) -> dict[str, Any]:
 
 
 def run_all(
-    jobs: list[Job], workers: int | None = None, progress: Callable[[int, int], None] | None = None
+    jobs: list[Job],
+    workers: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    executor: str = "local",
+    address: str | None = None,
 ) -> list[dict[str, Any]]:
+    """Every job's record, in the order of `jobs`. `executor`: "local" (this machine's
+    processes, `workers` of them) or "ray" (a Ray cluster at `address`, or a local Ray)."""
+    if executor not in EXECUTORS:
+        raise ConfigError(f"--executor: {executor!r} is not one of {', '.join(EXECUTORS)}")
+    if executor == "ray":
+        return run_all_ray(jobs, address, progress)
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     out: list[dict[str, Any]] = []
     if workers == 1:
@@ -148,6 +227,39 @@ def run_all(
                 progress(i, len(jobs))
         out = [f.result() for f in futures]
     return out
+
+
+def _import_ray() -> Any:
+    try:
+        import ray  # optional: `pip install "ray[default]"` (not a dependency of activetouch)
+    except ImportError:
+        raise ConfigError(
+            "--executor ray needs Ray, which is not installed: pip install 'ray[default]' "
+            "(or use the default --executor local)"
+        ) from None
+    return ray
+
+
+def run_all_ray(
+    jobs: list[Job], address: str | None = None, progress: Callable[[int, int], None] | None = None
+) -> list[dict[str, Any]]:
+    """`run_all` on Ray: one task per job (each worker keeps its loaded model, as a local pool
+    worker does). `address`: a running cluster ("ray://head:10001" or "auto"); None starts
+    a local Ray. Records come back in job order, so results.json is the local executor's."""
+    ray = _import_ray()
+    if not ray.is_initialized():
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    task = ray.remote(run_job)
+    pending = {task.remote(j): i for i, j in enumerate(jobs)}
+    out: list[dict[str, Any] | None] = [None] * len(jobs)
+    waiting = list(pending)
+    while waiting:
+        ready, waiting = ray.wait(waiting, num_returns=1)
+        for ref in ready:
+            out[pending[ref]] = ray.get(ref)
+        if progress:
+            progress(len(jobs) - len(waiting), len(jobs))
+    return [r for r in out if r is not None]
 
 
 def _median(values: list[int | None], budget: int) -> float | None:
@@ -229,6 +341,7 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
                 np.mean([max_moves + 1 if x is None else x for x in fc])
             ),
             "mean_planning_s": float(np.mean([r["planning_s"] for r in rs])),
+            "mean_contacts": float(np.mean([r.get("mean_contacts", 0.0) for r in rs])),
         }
     paired: dict[str, Any] = {}
     if "tree" in policies:

@@ -210,6 +210,15 @@ def write_report(
         "Moves are grasps until the label is correct; 'never' = not within the budget.",
         "",
     ]
+    if summary.get("robot_errors"):
+        errs = ", ".join(f"sim.{k} = {v:g}" for k, v in summary["robot_errors"].items())
+        lines.extend(
+            [
+                f"With the real robot's errors (docs/benchmark.md): {errs}; each run's "
+                "placement error and faulty sensors are in results.json (`errors`).",
+                "",
+            ]
+        )
 
     def table(title: str, key: str) -> None:
         lines.extend(

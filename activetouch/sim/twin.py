@@ -1,4 +1,9 @@
-"""The twin as one piece: a world with an object on the table, the hand and the arm on it."""
+"""The twin as one piece: a world with an object on the table, the hand and the arm on it.
+
+With the real robot's errors set in `SimConfig` (`placement_error_m`, `placement_error_deg`,
+`fault_*`; docs/benchmark.md) a twin made for a seed misplaces the object by a draw from that
+seed, which only the physics sees (the wrist, the support plane and whoever reads the object
+frame believe the nominal placement), and its hand reads through faulty sensors."""
 
 from __future__ import annotations
 
@@ -6,12 +11,104 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
+import numpy as np
+
 from activetouch.config import SimConfig, WorkcellConfig
+from activetouch.errors import ConfigError
+from activetouch.interfaces import N_SENSORS, Grasp
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.floating import FloatingWristMotion
+from activetouch.recognition.faults import (
+    SPURIOUS_FACTOR,
+    SensorFaults,
+    draw_faulty_sensors,
+    fault_rng,
+    faulty_reading,
+    spurious_contacts,
+)
 from activetouch.sim.hand import SimHand
 from activetouch.sim.objects import ObjectSpec
-from activetouch.sim.world import SimArm, SimWorld
+from activetouch.sim.world import HandContacts, SimArm, SimWorld
+
+_PLACEMENT_TAG = 0x91ACE  # keeps the placement draw apart from the hand's noise streams
+
+
+@dataclass(frozen=True)
+class PlacementError:
+    """Where the object really stands, relative to where the workcell says it does."""
+
+    dx: float = 0.0  # metres
+    dy: float = 0.0
+    yaw_rad: float = 0.0  # about the vertical through the object's centre
+
+
+def placement_error(cfg: SimConfig, seed: int) -> PlacementError:
+    """The seed's placement error: uniform within +-`placement_error_m` in x and y and
+    +-`placement_error_deg` about z (zero without those settings)."""
+    m, deg = float(cfg.placement_error_m), float(cfg.placement_error_deg)
+    if not (np.isfinite(m) and np.isfinite(deg) and m >= 0 and deg >= 0):
+        raise ConfigError(
+            f"sim.placement_error_m and sim.placement_error_deg must be >= 0, got {m}, {deg}"
+        )
+    if m == 0 and deg == 0:
+        return PlacementError()
+    u = np.random.default_rng([int(seed), _PLACEMENT_TAG]).uniform(-1.0, 1.0, 3)
+    return PlacementError(float(u[0] * m), float(u[1] * m), float(np.radians(u[2] * deg)))
+
+
+def sensor_faults(cfg: SimConfig) -> SensorFaults:
+    """The `fault_*` settings as a `SensorFaults`; ConfigError naming them if out of range."""
+    try:
+        return SensorFaults(
+            noise_std=float(cfg.fault_noise_std),
+            dead=int(cfg.fault_dead),
+            stuck=int(cfg.fault_stuck),
+            spurious=float(cfg.fault_spurious),
+        )
+    except ValueError as e:
+        raise ConfigError(f"sim.fault_*: {e}") from None
+
+
+class FaultySimHand(SimHand):
+    """The twin's hand read through faulty sensors (`activetouch.recognition.faults`): noise,
+    dead and stuck sensors act on every reading, so the guarded close reacts to them as the
+    ReFlex would; spurious contacts are added to the reported grasp only."""
+
+    def __init__(
+        self, world: SimWorld, cfg: SimConfig, faults: SensorFaults, seed: int | None = None
+    ) -> None:
+        self.faults = faults
+        super().__init__(world, cfg, seed=seed)  # calls reseed(), which draws the faults
+
+    def reseed(self, seed: int) -> None:
+        super().reseed(seed)
+        self.faulty = draw_faulty_sensors(self.faults, self.seed)
+        self._fault_rng = fault_rng(self.seed)
+
+    def _sense(
+        self, contacts: HandContacts, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pressures, depth = super()._sense(contacts, rng)
+        thr = self.cfg.contact_threshold
+        return faulty_reading(pressures, self.faults, self.faulty, thr, self._fault_rng), depth
+
+    def guarded_close(self) -> Grasp:
+        grasp = super().guarded_close()
+        in_contact = np.zeros(N_SENSORS, dtype=bool)
+        in_contact[grasp.sensor_ids] = True
+        extra = spurious_contacts(in_contact, self.faults, self.faulty, self._fault_rng)
+        if extra.size == 0:
+            return grasp
+        ids = np.concatenate([grasp.sensor_ids, extra])
+        order = np.argsort(ids, kind="stable")  # sensor ids ascending, as SimHand reports
+        pressure = np.full(extra.size, SPURIOUS_FACTOR * self.cfg.contact_threshold)
+        return Grasp(
+            sensor_ids=ids[order],
+            xyz=np.concatenate([grasp.xyz, self.world.sensor_sites_hand()[extra]])[order],
+            pressures=np.concatenate([grasp.pressures, pressure])[order],
+            finger_angles=grasp.finger_angles,
+            preshape=grasp.preshape,
+        )
 
 
 @dataclass
@@ -20,6 +117,7 @@ class Twin:
     hand: SimHand
     arm: SimArm
     wrist: FloatingWristMotion  # wrist poses in the object frame -> the arm's joints
+    cfg: SimConfig | None = None  # for the placement error of `place()`
 
     @property
     def support_z(self) -> float:
@@ -31,7 +129,10 @@ class Twin:
         (`open_twin(spec, cfg, seed)`), so a recognition repeats an in-process run exactly."""
         from activetouch.sim.devices import reset_twin
 
-        reset_twin(self.world, self.hand, spec, seed)
+        reset_twin(self.world, self.hand, spec, seed)  # also redraws a faulty hand's sensors
+        err = placement_error(self.cfg, seed) if self.cfg is not None else PlacementError()
+        if err != PlacementError():
+            place_displaced(self.world, spec, err)
 
 
 class TwinWrist(FloatingWristMotion):
@@ -61,12 +162,26 @@ def open_twin(
     seed: int | None = None,
     workcell: WorkcellConfig | None = None,
 ) -> Iterator[Twin]:
-    """A headless twin with `spec` placed on the table (none: an empty table)."""
+    """A headless twin with `spec` placed on the table (none: an empty table), misplaced and
+    with faulty sensors if `cfg` asks for the real robot's errors (drawn from `seed`, else
+    `cfg.seed`)."""
+    run_seed = cfg.seed if seed is None else int(seed)
+    err = placement_error(cfg, run_seed)
+    faults = sensor_faults(cfg)
     world = SimWorld(cfg, workcell=workcell)
     try:
         if spec is not None:
-            world.place(spec)
+            place_displaced(world, spec, err)
         arm = SimArm(world)
-        yield Twin(world, SimHand(world, cfg, seed=seed), arm, TwinWrist(arm))
+        hand = (
+            FaultySimHand(world, cfg, faults, seed) if faults.active else SimHand(world, cfg, seed)
+        )
+        yield Twin(world, hand, arm, TwinWrist(arm), cfg)
     finally:
         world.close()
+
+
+def place_displaced(world: SimWorld, spec: ObjectSpec, err: PlacementError) -> None:
+    """Stand `spec` on the table off its nominal placement by `err`; the object frame, which
+    the wrist (`TwinWrist`) and the support plane read, stays nominal."""
+    world.place(spec, offset_xy=(err.dx, err.dy), yaw_rad=err.yaw_rad)

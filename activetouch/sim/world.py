@@ -4,7 +4,11 @@ and `SimArm`, the floating wrist that carries the hand.
 Conventions: the world is the robot base frame, and the table is the workcell's box (by
 default its top at z = 0, centred at the origin). An object's frame has its origin at the
 object's bounding-box centre, axes parallel to the world's; the object stands on the table at
-the workcell's object x, y and is fixed. Wrist poses
+the workcell's object x, y and is fixed. `place(spec, offset_xy=..., yaw_rad=...)` stands the
+body off that by a placement error (the real robot's: the object is never exactly where the
+workcell says): the object frame (`object_origin`, wrist poses, the support plane) stays the
+nominal one, so everything that reads it believes the nominal placement, while Bullet's body is
+shifted and turned about its vertical axis (`PlacedObject.offset`, `yaw_rad`). Wrist poses
 are of the hand (ReFlex base link) frame expressed in the object frame. With no object on the
 table the object frame is the world frame.
 
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -111,7 +115,11 @@ class PlacedObject:
     body: int
     name: str
     extents: np.ndarray  # (3,) bounding-box size, metres
-    origin: np.ndarray  # (3,) world position of the object frame origin
+    origin: np.ndarray  # (3,) world position of the object frame origin (the nominal one)
+    # The placement error: where the body's centre really is in the object frame, and how far
+    # it is turned about z. Only Bullet's body knows it; the object frame is nominal.
+    offset: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw_rad: float = 0.0
 
 
 class SimWorld:
@@ -230,14 +238,28 @@ class SimWorld:
         """The table plane in the object frame."""
         return self.workcell.table_top_z - float(self.object_origin[2])
 
-    def place(self, spec: ObjectSpec) -> int:
-        """Put a library object on the table (removing any previous one); its body id."""
+    def place(
+        self, spec: ObjectSpec, offset_xy: tuple[float, float] = (0.0, 0.0), yaw_rad: float = 0.0
+    ) -> int:
+        """Put a library object on the table (removing any previous one); its body id.
+        `offset_xy` (metres) and `yaw_rad` (about the vertical through its centre) misplace
+        the body without telling the object frame (see the module notes)."""
         from activetouch.sim.objects import spawn_object  # the object library's loader
 
         self.clear()
         ext = np.asarray(spec.extents, dtype=np.float64)
-        body = spawn_object(self.cid, spec, position=tuple(self.object_centre(ext).tolist()))
-        return self.place_body(body, ext, spec.name)
+        offset = np.array([float(offset_xy[0]), float(offset_xy[1]), 0.0])
+        if not np.all(np.isfinite(offset)) or not np.isfinite(yaw_rad):
+            raise ValueError(f"placement error must be finite, got {offset_xy}, {yaw_rad}")
+        pos = self.object_centre(ext) + offset
+        body = spawn_object(self.cid, spec, position=tuple(pos.tolist()))
+        if yaw_rad != 0.0:
+            # Turning about z keeps the bounding box's bottom on the table (z is unchanged).
+            quat = Rotation.from_euler("z", float(yaw_rad)).as_quat()
+            pb.resetBasePositionAndOrientation(
+                body, pos.tolist(), quat.tolist(), physicsClientId=self.cid
+            )
+        return self.place_body(body, ext, spec.name, offset=offset, yaw_rad=float(yaw_rad))
 
     def object_centre(self, extents: np.ndarray) -> np.ndarray:
         """Where an object of `extents` stands: at the workcell's object x, y, on the table."""
@@ -246,15 +268,24 @@ class SimWorld:
             [wc.object_xyz[0], wc.object_xyz[1], wc.table_top_z + float(extents[2]) / 2]
         )
 
-    def place_body(self, body: int, extents: np.ndarray, name: str = "") -> int:
+    def place_body(
+        self,
+        body: int,
+        extents: np.ndarray,
+        name: str = "",
+        offset: np.ndarray | None = None,
+        yaw_rad: float = 0.0,
+    ) -> int:
         """Adopt `body` (already created in this world's client, fixed, standing on the table
-        at `object_centre(extents)`) as the object; the world removes it on `clear()`."""
+        at `object_centre(extents)`, or off it by `offset` and turned by `yaw_rad` when it
+        was misplaced on purpose) as the object; the world removes it on `clear()`."""
         ext = np.asarray(extents, dtype=np.float64).reshape(3)
         if np.any(ext <= 0) or not np.all(np.isfinite(ext)):
             raise ValueError(f"object extents must be positive, got {ext}")
         if self._object is not None and self._object.body != body:
             self.clear()
-        self._object = PlacedObject(body, name, ext, self.object_centre(ext))
+        off = np.zeros(3) if offset is None else np.asarray(offset, dtype=np.float64).reshape(3)
+        self._object = PlacedObject(body, name, ext, self.object_centre(ext), off, float(yaw_rad))
         self.set_wrist(self._wrist)  # the wrist pose is object-relative: re-pose the hand
         return body
 

@@ -15,7 +15,14 @@ from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.planning.policies import POLICY_NAMES
 from activetouch.service.commands.train import parse_objects
-from activetouch.service.evaluation import make_jobs, parse_seeds, run_all, summarise
+from activetouch.service.evaluation import (
+    error_overrides,
+    make_jobs,
+    parse_seeds,
+    robot_errors,
+    run_all,
+    summarise,
+)
 from activetouch.service.recognize import check_request, load_trained, model_path
 from activetouch.service.report import write_report
 from activetouch.sim.objects import ObjectLibrary
@@ -38,6 +45,33 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="end runs at the session's confidence rule (default: every run uses the whole "
         "budget, the paper's protocol, so moves-until-correct compare policies fairly)",
     )
+    p.add_argument(
+        "--placement-error",
+        metavar="M[,DEG]",
+        default=None,
+        help="the real robot's placement error: each run's object stands off the workcell's "
+        "placement by up to +-M metres in x and y and +-DEG degrees about z (drawn from the "
+        "seed) while the session believes the nominal one (sim.placement_error_m/_deg)",
+    )
+    p.add_argument(
+        "--sensor-faults",
+        metavar="noise=S,dead=N,stuck=N,spurious=P",
+        default=None,
+        help="tactile faults in the twin's hand: extra pressure noise (sensor units), dead and "
+        "stuck sensors per run, per-grasp probability of a spurious contact (sim.fault_*)",
+    )
+    p.add_argument(
+        "--executor",
+        choices=("local", "ray"),
+        default="local",
+        help="where runs execute: local processes (default) or Ray (optional, pip install ray)",
+    )
+    p.add_argument(
+        "--address",
+        default=None,
+        help="--executor ray: the cluster to join (e.g. ray://head:10001 or auto; "
+        "default: start a local Ray)",
+    )
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -56,6 +90,8 @@ def evaluate(
     console: Console,
     command: str,
     stop_when_confident: bool = False,
+    executor: str = "local",
+    address: str | None = None,
 ) -> dict:
     cfg = load_config(cfg_path, overrides)
     budget = max_moves if max_moves is not None else cfg.session.max_moves
@@ -85,10 +121,14 @@ def evaluate(
         console=console,
     ) as bar:
         task = bar.add_task("eval", total=len(jobs))
-        runs = run_all(jobs, workers, lambda done, _: bar.update(task, completed=done))
+        runs = run_all(
+            jobs, workers, lambda done, _: bar.update(task, completed=done), executor, address
+        )
     summary = summarise(runs, budget)
     summary["seconds"] = time.perf_counter() - t0
     summary["stop_when_confident"] = stop_when_confident
+    summary["robot_errors"] = robot_errors(cfg.sim)
+    summary["executor"] = executor
     class_hist = {}
     if model.class_histograms is not None:
         class_hist = dict(zip(model.class_names, model.class_histograms, strict=True))
@@ -111,6 +151,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--policies: unknown {bad}; choose from {', '.join(POLICY_NAMES)}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
+    overrides = [*args.overrides, *error_overrides(args.placement_error, args.sensor_faults)]
     root = paths.data_dir(args.data)
     evaluate(
         root,
@@ -121,10 +162,12 @@ def run(args: argparse.Namespace) -> int:
         args.max_moves,
         Path(args.out),
         args.config,
-        args.overrides,
+        overrides,
         args.workers,
         Console(),
         "python -m activetouch " + shlex.join(args.argv),
         args.stop_when_confident,
+        args.executor,
+        args.address,
     )
     return 0

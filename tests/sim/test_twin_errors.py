@@ -1,0 +1,135 @@
+"""The real robot's errors in the twin: a misplaced object the session does not know about, and
+faulty tactile sensors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from activetouch.config import load_config
+from activetouch.errors import ConfigError
+from activetouch.interfaces import SENSORS_PER_FINGER
+from activetouch.sim.objects import ObjectLibrary
+from activetouch.sim.pybullet import pb
+from activetouch.sim.twin import (
+    FaultySimHand,
+    PlacementError,
+    open_twin,
+    place_displaced,
+    placement_error,
+)
+
+
+@pytest.fixture(scope="module")
+def box(tmp_path_factory):
+    root = tmp_path_factory.mktemp("errors")
+    mesh = root / "box.obj"
+    trimesh.creation.box(extents=(0.10, 0.06, 0.08)).export(mesh)
+    return ObjectLibrary(root / "objects").add("box", mesh)
+
+
+def _body_pose(twin):
+    pos, quat = pb.getBasePositionAndOrientation(
+        twin.world.object.body, physicsClientId=twin.world.cid
+    )
+    return np.array(pos), np.array(quat)
+
+
+def _ray_hits(twin, x: float, y: float) -> bool:
+    hit = pb.rayTest([x, y, 0.5], [x, y, 0.001], physicsClientId=twin.world.cid)[0]
+    return hit[0] == twin.world.object.body
+
+
+def test_nominal_twin_has_no_error(box):
+    cfg = load_config(None, [])
+    assert placement_error(cfg.sim, 5) == PlacementError()
+    with open_twin(box, cfg.sim, seed=5) as twin:
+        np.testing.assert_array_equal(twin.world.object.offset, 0.0)
+        pos, _ = _body_pose(twin)
+        np.testing.assert_allclose(pos, twin.world.object_origin, atol=1e-9)
+        assert type(twin.hand).__name__ == "SimHand"
+
+
+def test_placement_error_moves_the_body_not_the_believed_frame(box):
+    cfg = load_config(None, ["sim.placement_error_m=0.02", "sim.placement_error_deg=15"])
+    nominal = load_config(None, [])
+    with open_twin(box, nominal.sim, seed=3) as ref:
+        origin, support = ref.world.object_origin, ref.support_z
+    draws = [placement_error(cfg.sim, s) for s in range(50)]
+    assert all(abs(d.dx) <= 0.02 and abs(d.dy) <= 0.02 for d in draws)
+    assert all(abs(np.degrees(d.yaw_rad)) <= 15 for d in draws)
+    assert max(abs(d.dx) for d in draws) > 0.015 and len(set(draws)) == 50  # spread, per seed
+    err = placement_error(cfg.sim, 3)
+    with open_twin(box, cfg.sim, seed=3) as twin:
+        # What the session reads is the nominal placement ...
+        np.testing.assert_allclose(twin.world.object_origin, origin)
+        np.testing.assert_allclose(twin.wrist.placement.xyz, origin)
+        assert twin.support_z == pytest.approx(support)
+        # ... while Bullet's body stands where the error put it.
+        pos, quat = _body_pose(twin)
+        np.testing.assert_allclose(pos, origin + np.array([err.dx, err.dy, 0.0]), atol=1e-9)
+        yaw = 2 * np.arctan2(quat[2], quat[3])
+        assert yaw == pytest.approx(err.yaw_rad, abs=1e-6)
+        np.testing.assert_allclose(twin.world.object.offset, [err.dx, err.dy, 0.0])
+
+
+def test_a_shifted_and_turned_box_is_felt_where_it_really_is(box):
+    cfg = load_config(None, [])
+    with open_twin(box, cfg.sim, seed=0) as twin:
+        assert _ray_hits(twin, 0.045, 0.0) and not _ray_hits(twin, 0.065, 0.0)
+        place_displaced(twin.world, box, PlacementError(dx=0.02))
+        assert _ray_hits(twin, 0.065, 0.0) and not _ray_hits(twin, -0.045, 0.0)
+        place_displaced(twin.world, box, PlacementError(yaw_rad=np.radians(90)))
+        # Turned a quarter: 6 cm along x, 10 cm along y.
+        assert _ray_hits(twin, 0.0, 0.045) and not _ray_hits(twin, 0.045, 0.0)
+
+
+def test_reused_twin_is_misplaced_like_a_fresh_one(box):
+    cfg = load_config(None, ["sim.placement_error_m=0.02", "sim.placement_error_deg=15"])
+    with open_twin(box, cfg.sim, seed=1) as twin:
+        twin.place(box, 9)
+        err = placement_error(cfg.sim, 9)
+        np.testing.assert_allclose(twin.world.object.offset, [err.dx, err.dy, 0.0])
+        assert twin.world.object.yaw_rad == pytest.approx(err.yaw_rad)
+
+
+def test_stuck_sensors_always_report_and_stop_their_finger(box):
+    cfg = load_config(None, ["sim.fault_stuck=6"])
+    with open_twin(None, cfg.sim, seed=2) as twin:  # an empty table: nothing to touch
+        hand = twin.hand
+        assert isinstance(hand, FaultySimHand)
+        stuck = set(hand.faulty.stuck.tolist())
+        g = hand.guarded_close()
+        assert set(g.sensor_ids.tolist()) == stuck
+        stuck_fingers = {s // SENSORS_PER_FINGER for s in stuck if s < 27}
+        for f in range(3):
+            moved = g.finger_angles[f] > 0.1
+            assert moved != (f in stuck_fingers)  # the ReFlex stops a finger that reads contact
+
+
+def test_dead_sensors_never_report(box):
+    from activetouch.interfaces import Pose
+
+    cfg = load_config(None, ["sim.fault_dead=20"])
+    top = Pose([0.0, 0.0, 0.04 + 0.0896 + 0.012], [1.0, 0.0, 0.0, 0.0])  # palm down, over it
+    seen_dead = set()
+    with open_twin(box, cfg.sim, seed=4) as twin, open_twin(box, load_config().sim, 4) as ref:
+        dead = set(twin.hand.faulty.dead.tolist())
+        for t in (twin, ref):
+            t.hand.open()
+            t.wrist.move_to(top)
+        faulty, clean = twin.hand.guarded_close(), ref.hand.guarded_close()
+        seen_dead = dead & set(clean.sensor_ids.tolist())
+        assert not dead & set(faulty.sensor_ids.tolist())
+    assert seen_dead  # the test grasp does touch with sensors that are dead in the faulty twin
+
+
+def test_bad_error_settings_name_the_setting(box):
+    with pytest.raises(ConfigError, match="placement_error"):
+        placement_error(load_config(None, ["sim.placement_error_m=-1"]).sim, 0)
+    with (
+        pytest.raises(ConfigError, match="fault"),
+        open_twin(None, load_config(None, ["sim.fault_dead=40"]).sim),
+    ):
+        pass
