@@ -161,6 +161,12 @@ class HandStateMsg(Message, kw_only=True):
     finger_angles: FingerAngles
     preshape: float
     stamp: float  # seconds, monotonic clock of the producer
+    # Optional (older producers omit them). The same instant on the producer's wall clock
+    # (time.time(), so readers on other machines can place it to within their clock sync;
+    # 0: unknown), and whether the hand's data stream is stale (no data within its timeout:
+    # this reading is the last one there was).
+    wall_stamp: float = 0.0
+    stale: bool = False
 
 
 class JointStateMsg(Message, kw_only=True):
@@ -595,10 +601,24 @@ def hand_state_to_msg(state: HandState) -> HandStateMsg:
         ),
         preshape=float(_floats(state.preshape, "preshape")),
         stamp=float(state.stamp),
+        wall_stamp=_wall_stamp(state),
+        stale=bool(getattr(state, "stale", False)),
     )
 
 
+def _wall_stamp(state: HandState) -> float:
+    """The state's wall-clock stamp: its own (drivers stamp each packet), else its monotonic
+    stamp carried over to the wall clock now (both clocks are this process's)."""
+    import time
+
+    wall = float(getattr(state, "wall_stamp", 0.0) or 0.0)
+    if wall > 0.0 or not state.stamp > 0.0:
+        return wall
+    return time.time() - (time.monotonic() - float(state.stamp))
+
+
 def hand_state_from_msg(msg: HandStateMsg) -> HandState:
+    # `wall_stamp` and `stale` stay on the message until HandState carries them.
     return HandState(
         pressures=np.array(msg.pressures, dtype=np.float64),
         contact=np.array(msg.contact, dtype=bool),

@@ -1,0 +1,57 @@
+"""`hand/state` carries the ReFlex driver's wall-clock stamp and stale flag; old messages
+(without them) still decode."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from activetouch.drivers.reflex.common import ReflexHandState
+from activetouch.interfaces import HandState
+from activetouch.service.messages import (
+    HandStateMsg,
+    decode,
+    encode,
+    hand_state_from_msg,
+    hand_state_to_msg,
+)
+
+
+def _state(cls=HandState, **kw):
+    return cls(
+        pressures=np.arange(38.0),
+        contact=np.arange(38) % 2 == 0,
+        finger_angles=np.array([0.1, 0.2, 0.3]),
+        preshape=0.4,
+        stamp=time.monotonic(),
+        **kw,
+    )
+
+
+def test_driver_state_keeps_its_wall_stamp_and_stale_flag():
+    s = _state(ReflexHandState, stale=True, wall_stamp=1_700_000_000.25)
+    msg = decode(encode(hand_state_to_msg(s)), HandStateMsg)
+    assert msg.stale is True and msg.wall_stamp == 1_700_000_000.25
+    assert msg.stamp == s.stamp
+    back = hand_state_from_msg(msg)
+    assert np.array_equal(back.pressures, s.pressures) and back.preshape == 0.4
+
+
+def test_a_state_without_wall_stamp_gets_its_instant_on_the_wall_clock():
+    s = _state()
+    msg = hand_state_to_msg(s)
+    assert msg.stale is False
+    assert abs(msg.wall_stamp - time.time()) < 0.5
+
+
+def test_messages_without_the_new_fields_still_decode():
+    old = (
+        b'{"v":1,"pressures":['
+        + b",".join([b"0.0"] * 38)
+        + b'],"contact":['
+        + b",".join([b"false"] * 38)
+        + b'],"finger_angles":[0.0,0.0,0.0],"preshape":0.0,"stamp":12.5}'
+    )
+    msg = decode(old, HandStateMsg)
+    assert msg.wall_stamp == 0.0 and msg.stale is False and msg.stamp == 12.5
