@@ -79,7 +79,8 @@ class PlannerConfig:
     # The recognition term of Eq. 1: "final" (the paper) scores 1 - max p(y | h_T) at the
     # path's end only; "anytime" averages 1 - max p(y | h_t) over t = 1..T, so a path that is
     # confident after its first grasps beats one that only gets there by its last (with T = 1
-    # both are Eq. 1).
+    # both are Eq. 1). "info_gain": the mean over the path of H(p(y | h_t)) / log K, i.e. the
+    # expected entropy reduction per step (docs/planner.md).
     objective: str = "anytime"
 
 
@@ -390,7 +391,7 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "observation.action_frame": ("relative", "absolute"),
     "planner.policy": ("tree", "greedy", "random"),
     "planner.eq4_sampling": ("renormalise", "per_class"),
-    "planner.objective": ("final", "anytime"),
+    "planner.objective": ("final", "anytime", "info_gain"),
     "grid.layout": ("shared", "per_object"),
 }
 

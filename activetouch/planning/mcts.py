@@ -18,6 +18,12 @@ One tree search (Alg. 3 run `simulations` times from a fresh root, then Alg. 2's
   ``c_m`` is the model's ``edge_cost`` of the step's edge: the paper's c_m(a) of its action for
   relative actions, the cost of the move itself for absolute ones. Option ``anytime``
   (`planner.objective`) replaces ``1 - max_y p(y | h_T)`` by its mean over ``h_1 .. h_T``.
+  Option ``info_gain`` replaces it by the mean over ``h_1 .. h_T`` of the normalised entropy
+  ``H(p(y | h_t)) / log K``: a constant (the root's entropy) minus the information the path
+  gains per step, so the running-mean backup over Eq. 4's sampled observations makes Q the
+  expected entropy reduction of p(y | h) per step (the paper's future work), shifted.
+  Confidence (max p) only counts the top class; entropy also rewards ruling out the runners-up,
+  which is what separates look-alikes.
 - **Backup**: every edge on the stored path gets ``N_a += 1, Q_a += (r - Q_a) / N_a``. Like the
   paper ("C_{t_a} is C_T(pi)"), every depth stores the whole path's reward, so the value of
   an edge deep in the tree estimates the cost of the full root-to-leaf path.
@@ -65,6 +71,10 @@ from activetouch.recognition.classifiers import (
 
 # Draws before a uniform pick among the remaining edges falls back to a full scan.
 _REJECTION_TRIES = 32
+
+# The recognition term of Eq. 1 (`planner.objective`), as the compiled loop takes it.
+OBJECTIVE_CODES = {"final": 0, "anytime": 1, "info_gain": 2}
+_FINAL, _ANYTIME, _INFO_GAIN = 0, 1, 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -452,11 +462,35 @@ def _pmax(p: np.ndarray) -> float:
 
 
 @njit(cache=True)
-def _step_pmax(kern: tuple, hist: np.ndarray, S: np.ndarray, o: int, last: float) -> float:
-    """max p(y | h_t) after a step; a step that observed nothing leaves it as it was."""
+def _norm_entropy(p: np.ndarray) -> float:
+    """H(p) / log K in [0, 1] (K classes; 0 for one class)."""
+    k = p.shape[0]
+    if k < 2:
+        return 0.0
+    h = 0.0
+    for y in range(k):
+        if p[y] > 0.0:
+            h -= p[y] * np.log(p[y])
+    return h / np.log(k)
+
+
+@njit(cache=True)
+def _unsure(kern: tuple, hist: np.ndarray, S: np.ndarray, objective: int) -> float:
+    """The per-step recognition term: 1 - max p(y | h), or H(p(y | h)) / log K."""
+    p = _proba_scores(kern, hist, S)
+    if objective == _INFO_GAIN:
+        return _norm_entropy(p)
+    return 1.0 - _pmax(p)
+
+
+@njit(cache=True)
+def _step_unsure(
+    kern: tuple, hist: np.ndarray, S: np.ndarray, o: int, last: float, objective: int
+) -> float:
+    """The recognition term after a step; a step that observed nothing leaves it as it was."""
     if o < 0:
         return last
-    return _pmax(_proba_scores(kern, hist, S))
+    return _unsure(kern, hist, S, objective)
 
 
 # nogil: a long search must not freeze the daemon's other threads (e-stop, status, signals).
@@ -473,7 +507,7 @@ def _run_simulations(
     c: float,
     lam: float,
     per_class: bool,
-    anytime: bool,
+    objective: int,
     seed: int,
     nodes: tuple,
     recs: tuple,
@@ -484,7 +518,7 @@ def _run_simulations(
     """Run the simulations; returns (nodes used, edge records used, simulations run). `used`
     and `hist` are modified during a simulation and restored after it. Another thread may
     set `stop[0]` (the search runs without the GIL): the search ends after the simulation
-    it is in."""
+    it is in. `objective`: `OBJECTIVE_CODES` (final, anytime, info_gain)."""
     (
         edge_ptr,
         edge_action,
@@ -523,7 +557,8 @@ def _run_simulations(
     S0 = np.empty(M + 2)
     _scores_init(kern, hist, S0)
     S = S0.copy()
-    pmax0 = _pmax(_proba_scores(kern, hist, S0)) if anytime else 0.0
+    per_step = objective != _FINAL  # anytime and info_gain average a term over the path
+    unsure0 = _unsure(kern, hist, S0, objective) if per_step else 0.0
     path_recs = np.empty(horizon, dtype=np.int64)
     path_pose = np.empty(horizon, dtype=np.int64)
     path_out = np.empty(horizon, dtype=np.int64)
@@ -554,7 +589,7 @@ def _run_simulations(
             root_cells[np.random.randint(0, root_cells.shape[0])] if root_cells.shape[0] > 0 else -1
         )
         move = 0.0
-        pmax = pmax0  # anytime objective: max p(y | h_t) after each step, summed as unsure
+        last = unsure0  # per-step objectives: the recognition term after each step, summed
         unsure = 0.0
         # Tree policy (Alg. 4) until a node is created, depth T, or no edge is left.
         while depth < horizon:
@@ -565,9 +600,9 @@ def _run_simulations(
             a = edge_action[e]
             move += edge_cost[e]
             o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
-            if anytime:
-                pmax = _step_pmax(kern, hist, S, o, pmax)
-                unsure += 1.0 - pmax
+            if per_step:
+                last = _step_unsure(kern, hist, S, o, last, objective)
+                unsure += last
             pose = edge_target[e]
             used[pose] = True
             path_pose[depth] = pose
@@ -603,17 +638,17 @@ def _run_simulations(
             a = edge_action[e]
             move += edge_cost[e]
             o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
-            if anytime:
-                pmax = _step_pmax(kern, hist, S, o, pmax)
-                unsure += 1.0 - pmax
+            if per_step:
+                last = _step_unsure(kern, hist, S, o, last, objective)
+                unsure += last
             pose = edge_target[e]
             used[pose] = True
             path_pose[depth] = pose
             path_out[depth] = o
             depth += 1
-        if anytime:
-            # Steps the path could not take (no pose left) keep the last confidence.
-            unsure += (horizon - depth) * (1.0 - pmax)
+        if per_step:
+            # Steps the path could not take (no pose left) keep the last value.
+            unsure += (horizon - depth) * last
             reward = 1.0 - (lam * move + (1.0 - lam) * unsure) / horizon
         else:
             # Eq. 1 on the simulated histogram h_T.
@@ -849,7 +884,10 @@ class TreeSearch:
         *,
         incremental: bool = True,
         anytime: bool = False,
+        objective: str | None = None,
     ) -> None:
+        """`objective`: "final" (Eq. 1, the paper), "anytime" or "info_gain" (see the module
+        notes); None takes "anytime" if `anytime` else "final" (the older keyword)."""
         if kernel.n_classes != model.n_classes:
             raise PlanningError(
                 f"classifier has {kernel.n_classes} classes, observation model "
@@ -862,7 +900,14 @@ class TreeSearch:
             )
         self.model = model
         self.kernel = kernel
-        self.anytime = anytime  # objective: the paper's Eq. 1 on h_T, or averaged over the path
+        objective = objective or ("anytime" if anytime else "final")
+        if objective not in OBJECTIVE_CODES:
+            raise PlanningError(
+                f"objective must be one of {', '.join(OBJECTIVE_CODES)}, got {objective!r}"
+            )
+        self.objective = objective
+        self.anytime = objective == "anytime"
+        self._objective_code = OBJECTIVE_CODES[objective]
         self._m = model_tuple(model)
         self._k = kernel_tuple(kernel, incremental)
         deg = np.diff(model.edge_ptr)
@@ -958,7 +1003,7 @@ class TreeSearch:
             np.float64(exploration_c),
             np.float64(lam),
             bool(per_class_backoff),
-            bool(self.anytime),
+            np.int64(self._objective_code),
             np.int64(seed),
             nodes,
             recs,
@@ -1004,9 +1049,10 @@ def search(
     lam: float = 0.5,
     per_class_backoff: bool = False,
     anytime: bool = False,
+    objective: str | None = None,
 ) -> SearchResult:
     """One-off tree search (see `TreeSearch.search`); the paper's objective by default."""
-    return TreeSearch(model, kernel, anytime=anytime).search(
+    return TreeSearch(model, kernel, anytime=anytime, objective=objective).search(
         pose,
         visited,
         counts,

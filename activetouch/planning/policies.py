@@ -138,7 +138,7 @@ class TreePolicy(Policy):
             raise ConfigError(
                 f"planner.objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}"
             )
-        self.search = TreeSearch(model, kernel, anytime=objective == "anytime")
+        self.search = TreeSearch(model, kernel, objective=objective)
 
     def interrupt(self) -> None:
         self.search.interrupt()
