@@ -243,6 +243,7 @@ def session_progress(msg: Progress) -> SessionProgress:
         top=[(label, float(p)) for label, p in msg.top3],
         skipped=msg.skipped,
         elapsed_s=msg.elapsed_s,
+        motion_s=msg.motion_s,
     )
 
 
@@ -257,6 +258,9 @@ def session_result(msg: RecognizeResult) -> RecognitionResult:
         planning_s=msg.planning_s,
         elapsed_s=msg.elapsed_s,
         stop_reason=msg.stop_reason,
+        motion_s=msg.motion_s,
+        motion_planning_s=msg.motion_planning_s,
+        grasp_s=msg.grasp_s,
     )
 
 

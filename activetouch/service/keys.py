@@ -20,6 +20,7 @@ widen a subscription or a query to other robots.
 | arm/clear_stop | queryable | Empty -> Reply[None] |
 | arm/estop | queryable (served at once) | Empty -> Reply[None] |
 | arm/enable, arm/disable | queryable | Empty -> Reply[None] |
+| arm/motion_stats | queryable | Empty -> Reply[MotionStats] |
 | recognize | queryable (daemon) | RecognizeRequest -> Reply[RecognizeResult] |
 | progress | publication (daemon) | Progress |
 | cancel | queryable (daemon) | CancelRequest -> Reply[CancelResult] |
@@ -133,6 +134,10 @@ class Keys:
     @property
     def arm_estop(self) -> str:
         return self._k("arm", "estop")
+
+    @property
+    def arm_motion_stats(self) -> str:
+        return self._k("arm", "motion_stats")
 
     @property
     def arm_enable(self) -> str:

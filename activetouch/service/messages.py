@@ -48,6 +48,7 @@ __all__ = [
     "JointTrajectoryMsg",
     "Message",
     "MessageError",
+    "MotionStats",
     "MoveWristRequest",
     "NodeHealth",
     "PoseMsg",
@@ -306,6 +307,7 @@ class Progress(Message, kw_only=True):
     stamp: float = 0.0  # wall clock (Unix seconds) of the producer
     pose_id: NonNegInt | None = None  # index of the grasp's pose in the model's training poses
     elapsed_s: NonNegFloat = 0.0  # since the session started
+    motion_s: NonNegFloat = 0.0  # robot seconds moving since the session started
 
 
 class RecognizeResult(Message, kw_only=True):
@@ -322,6 +324,19 @@ class RecognizeResult(Message, kw_only=True):
     object: Label | None = None
     stop_reason: Label = ""  # confident | budget | exhausted | cancelled | skips
     pose_ids: list[NonNegInt] = []  # the executed grasps' poses, in order
+    # Robot time (added later: optional, so results of older daemons still decode).
+    motion_s: NonNegFloat = 0.0  # the arm moving: sum of executed trajectory durations
+    motion_planning_s: NonNegFloat = 0.0  # the arm's motion planning (wall seconds)
+    grasp_s: NonNegFloat = 0.0  # the hand's open / preshape / guarded close (wall seconds)
+
+
+class MotionStats(Message, kw_only=True):
+    """What the arm node's motion layer has done since it was made (``arm/motion_stats``);
+    readers take differences."""
+
+    robot_s: NonNegFloat = 0.0  # sum of executed trajectory durations
+    planning_s: NonNegFloat = 0.0  # wall seconds planning them (failed plans included)
+    moves: NonNegInt = 0  # completed motions
 
 
 class CancelRequest(Message, kw_only=True):

@@ -58,6 +58,7 @@ from activetouch.service.messages import (
     HandStateMsg,
     JointStateMsg,
     Message,
+    MotionStats,
     MoveWristRequest,
     PreshapeRequest,
     Reply,
@@ -411,8 +412,19 @@ class ArmNode(_ServedNode):
             "estop": _Op(k.arm_estop, Empty, lambda _r: arm.estop(), fast=True),
             "enable": _Op(k.arm_enable, Empty, lambda _r: arm.enable()),
             "disable": _Op(k.arm_disable, Empty, lambda _r: arm.disable()),
+            # Robot time of the motion layer (a read of three numbers: at once, beside a
+            # motion, so a progress report never waits for one).
+            "motion_stats": _Op(k.arm_motion_stats, Empty, self._motion_stats, fast=True),
         }
         self._start()
+
+    def _motion_stats(self, _req: Empty) -> MotionStats:
+        w = self.wrist
+        if w is None:
+            return MotionStats()
+        return MotionStats(
+            robot_s=float(w.robot_seconds), planning_s=float(w.planning_seconds), moves=w.moves
+        )
 
     def _move_wrist(self, req: MoveWristRequest) -> None:
         if self.wrist is None:
@@ -772,6 +784,18 @@ class RemoteArm(_RemoteDevice, WristMotion):
     def move_to(self, pose: Pose) -> None:
         self.move_wrist(pose)
 
+    # The node's motion layer's robot time (``arm/motion_stats``), as `WristMotion` counts it;
+    # the session reads these around a recognition. Each is one query.
+    @property  # type: ignore[override]
+    def robot_seconds(self) -> float:
+        k = self.keys.arm_motion_stats
+        return self._call("motion_stats", k, Empty(), MotionStats).robot_s
+
+    @property  # type: ignore[override]
+    def planning_seconds(self) -> float:
+        k = self.keys.arm_motion_stats
+        return self._call("motion_stats", k, Empty(), MotionStats).planning_s
+
     def stop(self) -> None:
         self._call("stop", self.keys.arm_stop, Empty(), None)
 
@@ -930,9 +954,7 @@ class DeviceNodes:
         self.nodes: list[_ServedNode] = []
         lock = devices.lock
         try:
-            self.nodes.append(
-                HandNode(devices.hand, session, robot, state_hz=state_hz, lock=lock)
-            )
+            self.nodes.append(HandNode(devices.hand, session, robot, state_hz=state_hz, lock=lock))
             self.nodes.append(
                 ArmNode(
                     devices.arm,

@@ -150,6 +150,15 @@ class _GuardedWrist(WristMotion):
         self.interlock.check("arm motion")
         self.inner.move_to(pose)
 
+    # Robot time of the wrapped wrist (a read: allowed after a trip too).
+    @property  # type: ignore[override]
+    def robot_seconds(self) -> float:
+        return self.inner.robot_seconds
+
+    @property  # type: ignore[override]
+    def planning_seconds(self) -> float:
+        return self.inner.planning_seconds
+
 
 class _TimedPolicy(Policy):
     """A policy that keeps the planning time since it was last asked (per-move figures), ends
@@ -343,6 +352,14 @@ class _LocalArm(WristMotion):
     def move_to(self, pose: Pose) -> None:
         self.devices.wrist.set_placement(self.devices.placement())
         self.devices.wrist.move_to(pose)
+
+    @property  # type: ignore[override]
+    def robot_seconds(self) -> float:
+        return self.devices.wrist.robot_seconds
+
+    @property  # type: ignore[override]
+    def planning_seconds(self) -> float:
+        return self.devices.wrist.planning_seconds
 
     def stop(self) -> None:
         self.devices.arm.stop()
@@ -855,6 +872,7 @@ class RecognitionService:
                 stamp=time.time(),
                 pose_id=ev.pose_id,
                 elapsed_s=max(0.0, ev.elapsed_s),
+                motion_s=max(0.0, ev.motion_s),
             )
             publish = self.links.publish
             if publish is not None:
@@ -903,6 +921,9 @@ class RecognitionService:
             object=req.object,
             stop_reason=res.stop_reason,
             pose_ids=[int(p) for p in res.pose_ids],
+            motion_s=max(0.0, res.motion_s),
+            motion_planning_s=max(0.0, res.motion_planning_s),
+            grasp_s=max(0.0, res.grasp_s),
         )
 
     # -- e-stop thread

@@ -11,12 +11,14 @@ from pathlib import Path
 import numpy as np
 
 from activetouch import paths
-from activetouch.config import Config
+from activetouch.config import Config, SessionConfig
 from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
-from activetouch.planning.policies import POLICY_NAMES, make_policy
+from activetouch.planning.policies import POLICY_NAMES, Policy, make_policy
 from activetouch.service.session import Progress, RecognitionResult, RecognitionSession
 from activetouch.sim.objects import ObjectLibrary
+
+FLOATING_ARM = "twin-floating"  # the arm `open_twin` simulates
 
 
 def model_path(root: Path, explicit: str | None) -> Path:
@@ -49,7 +51,12 @@ def recognize_in_twin(
     on_progress: Callable[[Progress], None] | None = None,
     cancel: threading.Event | None = None,
 ) -> RecognitionResult:
-    """Recognise `object_name` placed in a fresh twin; deterministic for a seed."""
+    """Recognise `object_name` placed in a fresh twin; deterministic for a seed.
+
+    The floating twin (``arm.type = "twin-floating"``, the default) is opened directly; any
+    other arm (``twin-baxter``) runs on the configured devices (`make_devices`), which place
+    the object as ``sim/place`` does. `data` is the data directory those devices read the
+    object library from (default: the library's)."""
     from activetouch.sim.twin import open_twin
 
     session_cfg = cfg.session
@@ -59,6 +66,10 @@ def recognize_in_twin(
     spec = library.get(object_name)
     policy = make_policy(policy_name, cfg.planner, model.observation, model.classifier.kernel())
     rng = np.random.default_rng(seed)
+    if cfg.arm.type != FLOATING_ARM:
+        return _recognize_on_devices(
+            model, library, spec.name, policy, rng, seed, cfg, session_cfg, on_progress, cancel
+        )
     with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
         session = RecognitionSession(
             twin.hand,
@@ -72,3 +83,49 @@ def recognize_in_twin(
             support_z=twin.support_z,
         )
         return session.run()
+
+
+def _recognize_on_devices(
+    model: TrainedModel,
+    library: ObjectLibrary,
+    object_name: str,
+    policy: Policy,
+    rng: np.random.Generator,
+    seed: int,
+    cfg: Config,
+    session_cfg: SessionConfig,
+    on_progress: Callable[[Progress], None] | None,
+    cancel: threading.Event | None,
+) -> RecognitionResult:
+    """The recognition on `make_devices(cfg)`: placed through the devices' ``sim/place``, the
+    wrist told where the object stands, the table plane from the workcell (as the daemon
+    does it)."""
+    from activetouch.devices import make_devices
+    from activetouch.service.messages import SimPlaceRequest
+
+    # The library's root is <data>/objects: the devices find the same objects there.
+    devices = make_devices(cfg, library.root.parent)
+    try:
+        if not devices.simulated or devices.ctx.place is None:
+            raise ConfigError(
+                f"hand.type={cfg.hand.type!r} with arm.type={cfg.arm.type!r} cannot place "
+                f"{object_name!r}: recognize in-process needs simulated devices (twin, fake); "
+                "for a real robot run `activetouch serve --hardware` and `recognize --connect`"
+            )
+        devices.ctx.place(SimPlaceRequest(object=object_name, seed=seed))
+        placement = devices.placement()
+        devices.wrist.set_placement(placement)
+        session = RecognitionSession(
+            devices.hand,
+            devices.wrist,
+            model,
+            policy,
+            session_cfg,
+            rng,
+            on_progress,
+            cancel,
+            support_z=placement.support_z(cfg.workcell.table_top_z),
+        )
+        return session.run()
+    finally:
+        devices.close()

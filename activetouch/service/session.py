@@ -7,10 +7,22 @@ classifier answers after every grasp (the paper classified only after each whole
 that cannot be reached are skipped, marked visited and counted, as on the real robot. It stops
 when the top class stays above `confidence` for `stable_grasps` grasps in a row, when the move
 budget is spent, when no unvisited pose remains, or when cancelled.
+
+Robot time: the session reports the seconds the arm moved (`motion_s`: the wrist's
+`robot_seconds` over the run, trajectory time), the wall seconds of motion planning (the
+wrist's `planning_seconds`), of the hand's open / preshape / guarded close (`grasp_s`) and of
+the policy's search (`planning_s`); `total_s` is their sum.
+
+A wrist that can say which poses it reaches (`reachable(poses) -> bool array`, e.g. Baxter's
+motion layer) is asked once for all the model's poses before the first grasp: the unreachable
+ones are marked visited up front (`unreachable`; not grasped, not counted as `skipped`), so
+neither the first grasp nor the policy picks them. The floating twin has no `reachable`: its
+sessions are unchanged.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 from collections.abc import Callable
@@ -19,12 +31,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from activetouch.config import SessionConfig
-from activetouch.errors import ConfigError, PlanningInterruptedError, UnreachableError
+from activetouch.errors import (
+    ActiveTouchError,
+    ConfigError,
+    PlanningInterruptedError,
+    UnreachableError,
+)
 from activetouch.interfaces import Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.policies import Plan, PlanningState, Policy
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
+
+log = logging.getLogger(__name__)
 
 NO_LABEL = ""  # the label while no grasp has given a triangle (nothing felt to classify)
 
@@ -40,6 +59,7 @@ class Progress:
     top: list[tuple[str, float]]  # the three most probable classes
     skipped: int
     elapsed_s: float
+    motion_s: float = 0.0  # robot seconds moving since the session started
 
 
 @dataclass
@@ -52,13 +72,25 @@ class RecognitionResult:
     contacts: list[np.ndarray] = field(default_factory=list)  # per grasp (n, 3), object frame
     counts: np.ndarray | None = None  # final histogram counts
     skipped: int = 0
-    planning_s: float = 0.0
+    planning_s: float = 0.0  # the policy's search (wall seconds)
     elapsed_s: float = 0.0
     stop_reason: str = ""  # confident | budget | exhausted | cancelled | skips
+    motion_s: float = 0.0  # the arm moving: sum of executed trajectory durations
+    motion_planning_s: float = 0.0  # the motion layer planning (wall seconds, failures too)
+    grasp_s: float = 0.0  # the hand's open / preshape / guarded close (wall seconds)
+    unreachable: int = 0  # poses the wrist's `reachable()` ruled out before the first grasp
+    reachability_s: float = 0.0  # that check (wall seconds; once per placement, not per grasp)
 
     @property
     def moves(self) -> int:
         return len(self.labels)
+
+    @property
+    def total_s(self) -> float:
+        """Robot time of the recognition: moving, grasping, searching and motion planning (the
+        robot waits for both plans). The reachability check is left out: it is paid once per
+        placement, not per recognition."""
+        return self.motion_s + self.grasp_s + self.planning_s + self.motion_planning_s
 
 
 def display_label(label: str) -> str:
@@ -68,6 +100,19 @@ def display_label(label: str) -> str:
 def top_k(p: np.ndarray, names: tuple[str, ...], k: int = 3) -> list[tuple[str, float]]:
     order = np.argsort(-p, kind="stable")[:k]
     return [(names[i], float(p[i])) for i in order]
+
+
+def motion_clock(wrist: WristMotion) -> tuple[float, float] | None:
+    """The wrist's (robot_seconds, planning_seconds), or None if they cannot be read (a remote
+    arm node that does not answer them): robot time is reported, never worth failing for."""
+    try:  # duck-typed wrists without the counters count nothing
+        return (
+            float(getattr(wrist, "robot_seconds", 0.0)),
+            float(getattr(wrist, "planning_seconds", 0.0)),
+        )
+    except ActiveTouchError as e:
+        log.warning("cannot read the wrist's robot seconds: %s", e)
+        return None
 
 
 def training_preshapes(model: TrainedModel) -> np.ndarray:
@@ -107,23 +152,60 @@ class RecognitionSession:
         obs = model.observation
         self._poses = np.concatenate([obs.pose_xyz, obs.pose_quat], axis=1)
         self._preshapes = training_preshapes(model)
+        self._grasp_s = 0.0
+
+    def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
+        """`fn()` (a hand command), its wall time added to the grasping seconds."""
+        t = time.perf_counter()
+        try:
+            return fn()
+        finally:
+            self._grasp_s += time.perf_counter() - t
 
     def _grasp_at(self, pose_id: int) -> tuple[Grasp, Pose]:
         pose = Pose.from_array(self._poses[pose_id])
-        self.hand.open()
-        self.hand.preshape(float(self._preshapes[pose_id]))  # as training grasped here
+        preshape = float(self._preshapes[pose_id])
+        self._hand(self.hand.open)
+        self._hand(lambda: self.hand.preshape(preshape))  # as training grasped here
         self.wrist.move_to(pose)  # raises UnreachableError
-        grasp = self.hand.guarded_close()
-        self.hand.open()
+        grasp = self._hand(self.hand.guarded_close)
+        assert grasp is not None
+        self._hand(self.hand.open)
         if self.support_z is not None:
             grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)
         return grasp, pose
+
+    def _unreachable(self, res: RecognitionResult) -> list[int]:
+        """The model's poses the wrist says it cannot reach (none without `reachable`)."""
+        reachable = getattr(self.wrist, "reachable", None)
+        if reachable is None:
+            return []
+        t = time.perf_counter()
+        ok = np.asarray(reachable(self._poses), dtype=bool).reshape(-1)
+        res.reachability_s = time.perf_counter() - t
+        if ok.shape != (len(self._poses),):
+            raise ConfigError(
+                f"the wrist's reachable() gave {ok.shape[0]} verdicts for {len(self._poses)} poses"
+            )
+        out = [int(i) for i in np.flatnonzero(~ok)]
+        res.unreachable = len(out)
+        log.info(
+            "poses the arm reaches: %d of %d (checked in %.1f s)",
+            len(ok) - len(out),
+            len(ok),
+            res.reachability_s,
+        )
+        return out
 
     def run(self) -> RecognitionResult:
         t0 = time.perf_counter()
         names = self.model.class_names
         res = RecognitionResult(label="", probability=0.0)
-        visited: list[int] = []
+        self._grasp_s = 0.0
+        clock0 = motion_clock(self.wrist)
+        # Unreachable poses are visited from the start: never a first grasp, never planned.
+        visited: list[int] = self._unreachable(res)
+        ruled_out = set(visited)
         counts = np.zeros(self.model.spec.n_bins)
         state: PlanningState | None = None
         streak = 0
@@ -157,6 +239,8 @@ class RecognitionSession:
             else:
                 streak = 1
             if self.on_progress is not None:
+                now = motion_clock(self.wrist)
+                moved = now[0] - clock0[0] if now is not None and clock0 is not None else 0.0
                 self.on_progress(
                     Progress(
                         move=len(res.labels),
@@ -166,6 +250,7 @@ class RecognitionSession:
                         top=top_k(p, names) if felt else [],
                         skipped=res.skipped,
                         elapsed_s=time.perf_counter() - t0,
+                        motion_s=moved,
                     )
                 )
 
@@ -193,6 +278,8 @@ class RecognitionSession:
 
         # First grasp: a random training pose that can be reached.
         for pid in self.rng.permutation(len(self._poses)):
+            if int(pid) in ruled_out:
+                continue  # the same permutation as without the check: only these are left out
             if self.cancel.is_set() or res.skipped >= self.cfg.max_skips or attempt(int(pid)):
                 break
 
@@ -234,5 +321,10 @@ class RecognitionSession:
             p = np.asarray(res.probabilities[-1])
             res.label = res.labels[-1]
             res.probability = float(p.max()) if res.label != NO_LABEL else 0.0
+        res.grasp_s = self._grasp_s
+        clock1 = motion_clock(self.wrist)
+        if clock0 is not None and clock1 is not None:
+            res.motion_s = clock1[0] - clock0[0]
+            res.motion_planning_s = clock1[1] - clock0[1]
         res.elapsed_s = time.perf_counter() - t0
         return res

@@ -102,17 +102,9 @@ class TwinBaxterArmConfig(ArmConfig):
         model = baxter_model(ctx, self.motion)
         check_workcell(ctx.cfg.workcell, model)
         arm = TwinBaxterArm(rig.world, model, self, ObjectShapes(rig.library_root))
-        place = ctx.place
-
-        def place_then_home(req: Any) -> Any:
-            """The twin's place, then the arm back at its ready pose (a fresh twin's state)."""
-            result = place(req) if place is not None else rig.place(req)
-            arm.home()
-            return result
-
-        # The rig registered its own place; this one also brings the arm home, so a
-        # recognition repeats an in-process run exactly.
-        ctx.place = place_then_home
+        # Every `sim/place` also brings the arm home (a fresh twin's state), so a recognition
+        # repeats an in-process run exactly.
+        rig.after_place.append(arm.home)
         return PacedArm(arm, ctx.cfg.service.sim_motion_delay_s)
 
     def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -95,6 +96,9 @@ class TwinRig:
         self.hand = SimHand(self.world, cfg.sim)
         self.arm = SimArm(self.world)
         self.library_root = paths.objects_dir(paths.data_dir(data))
+        # Called at the end of every `place` (e.g. an arm type bringing its arm home, as in a
+        # freshly made twin): devices on this rig hook in here instead of wrapping `place`.
+        self.after_place: list[Callable[[], None]] = []
 
     def place(self, req: SimPlaceRequest) -> SimPlaceResult:
         from activetouch.service.messages import SimPlaceResult
@@ -103,6 +107,8 @@ class TwinRig:
         spec = ObjectLibrary(self.library_root).get(req.object)  # DataError names the known
         seed = self.hand.cfg.seed if req.seed is None else req.seed
         reset_twin(self.world, self.hand, spec, seed)
+        for hook in self.after_place:
+            hook()
         log.info("object placed", extra={"object": spec.name, "seed": req.seed})
         return SimPlaceResult(object=spec.name, extents=tuple(float(x) for x in spec.extents))
 

@@ -49,9 +49,21 @@ def workcell_placement(workcell: WorkcellConfig) -> Placement:
 
 
 class WristMotion(abc.ABC):
-    """Brings the hand frame to a wrist pose given in the object frame."""
+    """Brings the hand frame to a wrist pose given in the object frame.
+
+    Robot time, counted by implementations that move something (readers take differences,
+    e.g. around one recognition; these class defaults stay 0 for wrists that count nothing):
+    `robot_seconds` is the sum of the durations of executed trajectories (trajectory time,
+    as the robot takes it; a motion that raised adds nothing), `planning_seconds` the wall
+    time spent planning them (failed plans included), `moves` the completed motions, and
+    `last_motion_s` / `last_planning_s` the same for the last `move_to` alone."""
 
     placement: Placement
+    robot_seconds: float = 0.0
+    planning_seconds: float = 0.0
+    moves: int = 0
+    last_motion_s: float = 0.0
+    last_planning_s: float = 0.0
 
     @abc.abstractmethod
     def move_to(self, pose: Pose) -> None:

@@ -96,4 +96,11 @@ class FloatingWristMotion(WristMotion):
         if bad:
             raise UnreachableError(f"wrist pose outside the workspace: {'; '.join(bad)}")
         start = self.arm.joint_state().position
-        self.arm.execute(straight_trajectory(start, goal, limits.velocity))
+        trajectory = straight_trajectory(start, goal, limits.velocity)
+        self.last_motion_s = 0.0  # stays 0 if the arm refuses or stops (nothing completed)
+        self.arm.execute(trajectory)
+        # Robot time is the trajectory's own duration (what a real arm would take), not the
+        # wall time the twin needed to replay it.
+        self.last_motion_s = float(trajectory.times[-1] - trajectory.times[0])
+        self.robot_seconds += self.last_motion_s
+        self.moves += 1

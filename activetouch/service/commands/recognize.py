@@ -71,7 +71,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 def format_progress(ev: Progress) -> str:
     top = "  ".join(f"{name} {p:.2f}" for name, p in ev.top) or "nothing felt yet"
     skipped = f"  ({ev.skipped} skipped)" if ev.skipped else ""
-    return f"move {ev.move:>2}  pose {ev.pose_id:>4}  contacts {ev.n_contacts}  |  {top}{skipped}"
+    moved = f"  robot {ev.motion_s:.1f} s" if ev.motion_s > 0 else ""
+    return (
+        f"move {ev.move:>2}  pose {ev.pose_id:>4}  contacts {ev.n_contacts}  |  {top}{skipped}"
+        f"{moved}"
+    )
 
 
 def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int | None) -> dict:
@@ -89,6 +93,13 @@ def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int 
         "planning_s": res.planning_s,
         "elapsed_s": res.elapsed_s,
         "pose_ids": res.pose_ids,
+        # Robot time (docs/motion.md): moving (trajectory seconds), grasping, motion planning;
+        # total_s adds the search (planning_s).
+        "motion_s": res.motion_s,
+        "grasp_s": res.grasp_s,
+        "motion_planning_s": res.motion_planning_s,
+        "total_s": res.total_s,
+        "unreachable": res.unreachable,
     }
 
 
@@ -157,6 +168,13 @@ def _report(
         f"recognised: [bold]{display_label(res.label)}[/] (p = {res.probability:.2f}) "
         f"after {res.moves} grasps, {res.skipped} poses skipped, "
         f"stopped: {res.stop_reason}{verdict}"
+    )
+    unreachable = f"; {res.unreachable} poses out of the arm's reach" if res.unreachable else ""
+    console.print(
+        f"robot time: {res.total_s:.1f} s = moving {res.motion_s:.1f} s + grasping "
+        f"{res.grasp_s:.1f} s + planning {res.planning_s + res.motion_planning_s:.1f} s "
+        f"(search {res.planning_s:.2f} s, motion {res.motion_planning_s:.2f} s){unreachable}",
+        highlight=False,
     )
 
 
