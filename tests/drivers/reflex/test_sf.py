@@ -30,7 +30,13 @@ def emu():
 
 @pytest.fixture
 def hand(emu):
-    h = ReflexSFHand(ReflexSFConfig(port=emu.port, motor_zero_rad=list(emu.cfg.motor_zero_rad)))
+    # 0.5 s, not the 0.2 s default: a busy 2-core CI machine can hold the pty emulator's
+    # thread that long; the stream-loss test below still requires an error within 1 s.
+    h = ReflexSFHand(
+        ReflexSFConfig(
+            port=emu.port, motor_zero_rad=list(emu.cfg.motor_zero_rad), stream_timeout_s=0.5
+        )
+    )
     h.connect()
     yield h
     h.disconnect()
