@@ -1,0 +1,202 @@
+"""How recognition degrades under the real robot's errors: object placement error and tactile
+sensor faults (issue 15), each level against the error-free twin, paired by (object, seed).
+
+    ACTIVETOUCH_HOME=DIR python benchmarks/degradation.py --seeds 0-2 --workers 2 \\
+        --policies tree,greedy --json degradation.json
+    python benchmarks/degradation.py --from-json degradation.json   # the table again
+
+Each level is a set of `sim.*` error settings (docs/benchmark.md); a run's placement error and
+faulty sensors are drawn from its seed, so every policy meets the same errors. Protocol as in
+docs/results/: no early stop, 15 grasps, moves to first correct with "never" = budget + 1. The
+model is trained without errors (the planner and the classifier believe the nominal twin).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from activetouch import paths
+from activetouch.config import load_config
+from activetouch.service.evaluation import Job, make_jobs, paired_stats, parse_seeds, run_all
+from activetouch.service.recognize import load_trained, model_path
+
+# name -> (what it is, settings). The placement levels are the issue's bounds (2 cm, 15 deg)
+# and half of them; sensor levels are single faults of plausible size (threshold 20 units,
+# the twin's own noise 2 units), then everything at once.
+LEVELS: dict[str, tuple[str, list[str]]] = {
+    "none": ("the nominal twin", []),
+    "place_1cm_5deg": (
+        "placement +-1 cm, +-5 deg",
+        ["sim.placement_error_m=0.01", "sim.placement_error_deg=5"],
+    ),
+    "place_2cm_15deg": (
+        "placement +-2 cm, +-15 deg",
+        ["sim.placement_error_m=0.02", "sim.placement_error_deg=15"],
+    ),
+    "noise_5": ("pressure noise +5 units", ["sim.fault_noise_std=5"]),
+    "noise_10": ("pressure noise +10 units", ["sim.fault_noise_std=10"]),
+    "dead_4": ("4 of 38 sensors dead", ["sim.fault_dead=4"]),
+    "stuck_1": ("1 sensor stuck on", ["sim.fault_stuck=1"]),
+    "spurious_2pct": ("2 % spurious contacts", ["sim.fault_spurious=0.02"]),
+    "all": (
+        "placement 2 cm/15 deg + noise 5 + 4 dead + 1 stuck + 2 % spurious",
+        [
+            "sim.placement_error_m=0.02",
+            "sim.placement_error_deg=15",
+            "sim.fault_noise_std=5",
+            "sim.fault_dead=4",
+            "sim.fault_stuck=1",
+            "sim.fault_spurious=0.02",
+        ],
+    ),
+}
+
+
+def capped(r: dict[str, Any], budget: int) -> int:
+    m = r["moves_to_first_correct"]
+    return budget + 1 if m is None else int(m)
+
+
+def degradation_rows(
+    runs: list[dict[str, Any]], levels: list[str], policies: list[str], budget: int
+) -> list[dict[str, Any]]:
+    """Per (level, policy): accuracy, grasps, contacts, and the paired change against 'none'."""
+    by = {(r["level"], r["policy"], r["object"], r["seed"]): r for r in runs}
+    rows = []
+    for level in levels:
+        for p in policies:
+            rs = [r for r in runs if r["level"] == level and r["policy"] == p]
+            if not rs:
+                continue
+            base = [by.get(("none", p, r["object"], r["seed"])) for r in rs]
+            pairs = [(r, b) for r, b in zip(rs, base, strict=True) if b is not None]
+            # Positive: the errors cost grasps (errors - nominal).
+            d = np.array([capped(r, budget) - capped(b, budget) for r, b in pairs], dtype=float)
+            acc_d = np.array([float(r["final_correct"]) - b["final_correct"] for r, b in pairs])
+            st = paired_stats(d, np.random.default_rng(0))
+            acc_st = paired_stats(acc_d, np.random.default_rng(0))
+            moves = np.array([capped(r, budget) for r in rs], dtype=float)
+            rows.append(
+                {
+                    "level": level,
+                    "policy": p,
+                    "runs": len(rs),
+                    "final_accuracy": float(np.mean([r["final_correct"] for r in rs])),
+                    "accuracy_change": acc_st["mean"],
+                    "accuracy_change_ci95": acc_st["ci95"],
+                    "mean_first_correct": float(moves.mean()),
+                    "median_first_correct": float(np.median(moves)),
+                    "extra_grasps": st["mean"],
+                    "extra_grasps_ci95": st["ci95"],
+                    "mean_contacts": float(np.mean([r["mean_contacts"] for r in rs])),
+                }
+            )
+    return rows
+
+
+def print_table(runs: list[dict[str, Any]], levels: list[str], policies: list[str], budget: int):
+    seeds = sorted({r["seed"] for r in runs})
+    objects = sorted({r["object"] for r in runs})
+    print(
+        f"\n{len(objects)} objects x {len(seeds)} seeds ({seeds[0]}-{seeds[-1]}), budget {budget}"
+        f" grasps, never = {budget + 1}; changes paired by (object, seed) against 'none'\n"
+    )
+    print(
+        "| errors | policy | final accuracy | change (95 % CI) | mean grasps to first correct | "
+        "median | extra grasps (95 % CI) | contacts per grasp |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for r in degradation_rows(runs, levels, policies, budget):
+        what = LEVELS[r["level"]][0] if r["level"] in LEVELS else r["level"]
+        alo, ahi = r["accuracy_change_ci95"]
+        glo, ghi = r["extra_grasps_ci95"]
+        change = (
+            "" if r["level"] == "none" else f"{r['accuracy_change']:+.1%} [{alo:+.1%}, {ahi:+.1%}]"
+        )
+        extra = "" if r["level"] == "none" else f"{r['extra_grasps']:+.2f} [{glo:+.2f}, {ghi:+.2f}]"
+        print(
+            f"| {what} | {r['policy']} | {r['final_accuracy']:.1%} | {change} | "
+            f"{r['mean_first_correct']:.2f} | {r['median_first_correct']:g} | {extra} | "
+            f"{r['mean_contacts']:.1f} |"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument(
+        "--levels", default=",".join(LEVELS), help="comma list of: " + ", ".join(LEVELS)
+    )
+    ap.add_argument("--policies", default="tree,greedy")
+    ap.add_argument("--objects", default=None, help="comma-separated (default: the model's)")
+    ap.add_argument("--seeds", default="0-2")
+    ap.add_argument("--max-moves", type=int, default=15)
+    ap.add_argument("--set", action="append", default=[], help="override for every level")
+    ap.add_argument("--model", default=None)
+    ap.add_argument("--data", default=None)
+    ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--executor", choices=("local", "ray"), default="local")
+    ap.add_argument("--address", default=None, help="--executor ray: the cluster")
+    ap.add_argument("--json", default=None, help="write the runs here")
+    ap.add_argument("--from-json", default=None, help="comma list of saved runs: table only")
+    args = ap.parse_args(argv)
+    policies = [p.strip() for p in args.policies.split(",") if p.strip()]
+
+    if args.from_json:
+        runs: list[dict[str, Any]] = []
+        levels: list[str] = []
+        for f in args.from_json.split(","):
+            doc = json.loads(Path(f).read_text())
+            runs += doc["runs"]
+            levels += [lv for lv in doc["levels"] if lv not in levels]
+            args.max_moves = doc["max_moves"]
+        pols = list(dict.fromkeys(r["policy"] for r in runs))
+        print_table(runs, levels, pols, args.max_moves)
+        return 0
+
+    levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
+    unknown = [lv for lv in levels if lv not in LEVELS]
+    if unknown:
+        ap.error(f"unknown levels {unknown}; choose from {', '.join(LEVELS)}")
+    if "none" not in levels:
+        levels.insert(0, "none")  # the reference every level is paired with
+    root = paths.data_dir(args.data)
+    model_dir = model_path(root, args.model)
+    model = load_trained(model_dir)
+    objects = args.objects.split(",") if args.objects else list(model.class_names)
+    seeds = parse_seeds(args.seeds)
+    jobs: list[Job] = []
+    owner: list[str] = []
+    for level in levels:
+        cfg = load_config(None, ["session.confidence=2", *args.set, *LEVELS[level][1]])
+        js = make_jobs(
+            model_dir, paths.objects_dir(root), objects, policies, seeds, args.max_moves, cfg
+        )
+        jobs += js
+        owner += [level] * len(js)
+    runs = run_all(
+        jobs,
+        args.workers,
+        lambda i, n: print(f"\r{i}/{n} runs", end="", file=sys.stderr, flush=True),
+        args.executor,
+        args.address,
+    )
+    print(file=sys.stderr)
+    public = [
+        {"level": lv, **{k: v for k, v in r.items() if not k.startswith("_")}}
+        for r, lv in zip(runs, owner, strict=True)
+    ]
+    if args.json:
+        doc = {"levels": levels, "max_moves": args.max_moves, "argv": argv or sys.argv[1:]}
+        Path(args.json).write_text(json.dumps({**doc, "runs": public}) + "\n")
+    print_table(public, levels, policies, args.max_moves)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
