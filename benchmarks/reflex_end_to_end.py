@@ -77,13 +77,15 @@ def summarise(res: Any, n_contacts: list[int]) -> dict[str, Any]:
     }
 
 
-def run_direct(root: str, obj: str, seeds: list[int], policy: str) -> list[dict[str, Any]]:
+def run_direct(
+    root: str, obj: str, seeds: list[int], policy: str, overrides: tuple[str, ...] = ()
+) -> list[dict[str, Any]]:
     """The twin hand closing itself (as `activetouch recognize` / `eval` run it)."""
     from activetouch.model import load_model
     from activetouch.service.recognize import recognize_in_twin
     from activetouch.sim.objects import ObjectLibrary
 
-    cfg = load_config(None, [])
+    cfg = load_config(None, list(overrides))
     model = load_model(paths.default_model(Path(root)))
     lib = ObjectLibrary(paths.objects_dir(Path(root)))
     out = []
@@ -143,6 +145,11 @@ def job(args: tuple[str, str, str, list[int], str, float]) -> tuple[str, str, li
     kind, root, obj, seeds, policy, loss = args
     if kind == "direct":
         return kind, obj, run_direct(root, obj, seeds, policy)
+    if kind == "direct-redraw":
+        # The same twin and seeds, the sensor noise drawn from a stream instead of from the
+        # pose: how often labels differ from noise alone (the driver's pads are read from
+        # the twin's stream too, so its runs cannot repeat the twin's noise draws).
+        return kind, obj, run_direct(root, obj, seeds, policy, ("sim.noise_mode=stream",))
     return f"driver@{loss:g}", obj, run_driver(root, obj, seeds, policy, loss)
 
 
@@ -176,11 +183,12 @@ def table(results: dict[str, dict[str, list[dict]]], objects: list[str], seeds: 
                 same_first += bool(r["contacts"][:1] == d["contacts"][:1])
                 grasps.append(r["grasps"])
                 per_grasp.append(r["elapsed_s"] / max(1, r["grasps"]))
-        name = (
-            "twin hand directly"
-            if variant == "direct"
-            else (f"TakkTile driver, emulator, {float(variant.split('@')[1]):.0%} packet loss")
-        )
+        if variant == "direct":
+            name = "twin hand directly"
+        elif variant == "direct-redraw":
+            name = "twin hand, noise redrawn (baseline)"
+        else:
+            name = f"TakkTile driver, emulator, {float(variant.split('@')[1]):.0%} packet loss"
         lines.append(
             f"| {name} | {n} | {correct / n:.0%} | {same / n:.0%} | {np.mean(grasps):.2f} | "
             f"{same_first / n:.0%} | {np.mean(per_grasp):.3f} |"
@@ -220,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = parse_seeds(a.seeds)
     ensure_model(root, list(PAPER_SIM_OBJECTS), load_config(None, []))  # --objects: a subset
     jobs = [("direct", str(root), o, seeds, a.policy, 0.0) for o in objects]
+    jobs += [("direct-redraw", str(root), o, seeds, a.policy, 0.0) for o in objects]
     jobs += [("driver", str(root), o, seeds, a.policy, loss) for loss in a.loss for o in objects]
     results: dict[str, dict[str, list[dict]]] = {}
     t0 = time.perf_counter()
@@ -235,7 +244,7 @@ def main(argv: list[str] | None = None) -> int:
         f"\n{len(objects)} objects x {len(seeds)} seeds, {a.workers} workers, "
         f"{time.perf_counter() - t0:.0f} s\n"
     )
-    order = ["direct"] + [f"driver@{loss:g}" for loss in a.loss]
+    order = ["direct", "direct-redraw"] + [f"driver@{loss:g}" for loss in a.loss]
     results = {k: results[k] for k in order}
     text = table(results, objects, seeds)
     print(f"$ python benchmarks/reflex_end_to_end.py {' '.join(sys.argv[1:])}\n")

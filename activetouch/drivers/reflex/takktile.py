@@ -17,6 +17,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -188,6 +189,24 @@ class ReflexTakktileHand(Hand):
         self._unwrap = kinematics.EncoderUnwrapper()
         self._last_systime: int | None = None
         self._preshape_target: float | None = None
+        self._listeners: list[Callable[[ReflexHandState], None]] = []
+
+    def add_state_listener(self, fn: Callable[[ReflexHandState], None]) -> None:
+        """Call `fn(state)` from the receive thread for every accepted packet (the packet
+        rate, 40 Hz) and once when the stream goes stale, so `hand/state` can be published
+        at the rate the hand measures, beside a running command. `fn` must be quick and
+        must not call commands (it runs on the thread that feeds them)."""
+        self._listeners.append(fn)
+
+    def _notify(self) -> None:
+        if not self._listeners:
+            return
+        state = self.state()
+        for fn in list(self._listeners):
+            try:
+                fn(state)
+            except Exception:  # a listener must not end the receive thread
+                log.exception("ReFlex: state listener failed")
 
     # -- link -----------------------------------------------------------------------------
 
@@ -262,6 +281,7 @@ class ReflexTakktileHand(Hand):
             quiet = latest is None or now - latest.mono > self.cfg.stream_timeout_s
             if not self._stale and quiet:
                 self._on_stream_lost(now)
+                self._notify()  # listeners see the hand go stale
 
     def _on_datagram(self, data: bytes, now: float) -> None:
         with self._cond:
@@ -284,6 +304,7 @@ class ReflexTakktileHand(Hand):
                 log.info("ReFlex: state stream up")
             self._stale = False
             self._cond.notify_all()
+        self._notify()
 
     def _convert(self, p: codec.StatePacket, now: float) -> Reading:
         pressures = p.pressures.astype(np.float64) - self.offsets

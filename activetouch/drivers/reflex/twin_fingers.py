@@ -24,6 +24,9 @@ from contextlib import contextmanager
 
 import numpy as np
 
+# 0.05 rad / 2**5: the twin's substep (0.01) halved 3 times (its PRESS_HALVINGS) is 1.25 mrad.
+SETTLE_HALVINGS = 5
+
 
 class TwinFingers:
     def __init__(
@@ -107,11 +110,11 @@ class TwinFingers:
         self, spool: np.ndarray, preshape: float, fingers: list[int], col: int, allowed
     ) -> np.ndarray:
         """The largest spools of `fingers` between the last reading's and `spool` at which
-        their link `col` (0 proximal, 1 distal) is no deeper than `allowed` (3 halvings, as
-        the twin's close finds where its finger settles)."""
+        their link `col` (0 proximal, 1 distal) is no deeper than `allowed` (halvings down to
+        ~1.5 mrad, the resolution at which the twin's own close settles a finger)."""
         lo = np.minimum(self.prev_spool[fingers], spool[fingers])
         hi = spool[fingers].copy()
-        for _ in range(3):
+        for _ in range(SETTLE_HALVINGS):
             mid = (lo + hi) / 2
             trial = spool.copy()
             trial[fingers] = mid

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 
 import numpy as np
@@ -55,3 +56,34 @@ def test_messages_without_the_new_fields_still_decode():
     )
     msg = decode(old, HandStateMsg)
     assert msg.wall_stamp == 0.0 and msg.stale is False and msg.stamp == 12.5
+
+
+def test_state_listener_runs_at_the_packet_rate_and_sees_the_stream_go_stale(emulator, ports):
+    """The hook a hand node can publish `hand/state` from: every accepted packet (40 Hz),
+    each with a wall-clock and a monotonic stamp, and once more when the stream stops."""
+    from activetouch.drivers.reflex.takktile import ReflexTakktileHand
+
+    from .conftest import driver_config
+
+    hand = ReflexTakktileHand(
+        driver_config(*ports, zero_offsets=[300.0 + 10 * i for i in range(38)])
+    )
+    seen: list[ReflexHandState] = []
+    hand.add_state_listener(seen.append)
+    hand.connect()
+    try:
+        time.sleep(0.5)
+        fresh = [s for s in seen if not s.stale]
+        assert 12 <= len(fresh) <= 28  # 40 Hz over 0.5 s, loosely
+        assert all(
+            b.stamp > a.stamp and b.wall_stamp > a.wall_stamp for a, b in itertools.pairwise(fresh)
+        )
+        assert abs(fresh[-1].wall_stamp - time.time()) < 0.5
+        emulator.faults.stalled = True
+        time.sleep(0.5)
+        assert seen[-1].stale and hand_state_to_msg(seen[-1]).stale
+        n = len(seen)
+        time.sleep(0.2)
+        assert len(seen) == n  # nothing more while stale
+    finally:
+        hand.disconnect()
