@@ -146,3 +146,24 @@ def test_serve_on_fake_devices_without_pybullet(trained_home: Path) -> None:
     assert out["mode"] == "sim" and out["nodes"] == ["arm", "daemon", "hand", "sim"]
     assert 1 <= out["moves"] <= 4
     assert out["label"] in ("cup", "sphere", "bottle", "")
+
+
+def test_twin_rig_calls_its_after_place_hooks_once_the_object_stands(trained_home: Path) -> None:
+    """`TwinRig.after_place`: devices on the twin hook into `sim/place` (the Baxter twin homes
+    its arm there) instead of replacing `ctx.place`; each hook sees the new object placed."""
+    from activetouch.service.messages import SimPlaceRequest
+    from activetouch.sim.devices import TWIN
+
+    devices = make_devices(load_config(), trained_home)
+    try:
+        rig = devices.ctx.shared(TWIN, lambda: pytest.fail("no twin rig"))
+        assert devices.ctx.place == rig.place  # not wrapped by anybody
+        seen: list[np.ndarray] = []
+        rig.after_place.append(lambda: seen.append(rig.world.object_origin.copy()))
+        res = devices.ctx.place(SimPlaceRequest(object="cup", seed=0))
+        top = devices.ctx.cfg.workcell.table_top_z
+        assert len(seen) == 1 and seen[0][2] == pytest.approx(top + res.extents[2] / 2)
+        devices.ctx.place(SimPlaceRequest(object="sphere"))
+        assert len(seen) == 2 and seen[1][2] != pytest.approx(seen[0][2])
+    finally:
+        devices.close()

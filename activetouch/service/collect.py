@@ -3,20 +3,29 @@
 Runs on any `Hand` + `WristMotion` pair. Progress is saved in batches to the dataset, so an
 interrupted collection resumes where it stopped: poses already grasped, or found unreachable,
 are skipped.
+
+A wrist that can say which poses it reaches (`reachable(poses) -> bool array`, e.g. Baxter's
+motion layer) is asked once per object for the pending grid poses; the unreachable ones are
+recorded as skipped without moving, and the count is logged and returned (`CollectStats`).
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from activetouch.errors import DataError, UnreachableError
+import numpy as np
+
+from activetouch.errors import ActiveTouchError, DataError, UnreachableError
 from activetouch.interfaces import Hand, Pose
 from activetouch.planning.grid import GridPoses
 from activetouch.planning.motion.base import WristMotion
 from activetouch.recognition.contacts import drop_support_contacts
 from activetouch.recognition.dataset import MANIFEST, Dataset, GraspRecord
+
+log = logging.getLogger(__name__)
 
 SKIPPED_ATTR = "skipped_pose_ids"  # unreachable poses, kept in the object's attrs for resuming
 
@@ -28,6 +37,10 @@ class CollectStats:
     skipped: int = 0
     already_done: int = 0
     seconds: float = 0.0
+    # With a wrist that has `reachable()`: how many of the `checked` pending grid poses it
+    # reaches (None: the wrist cannot tell; every pose was tried).
+    reachable: int | None = None
+    checked: int = 0
 
 
 def _skipped(dataset: Dataset, name: str) -> set[int]:
@@ -81,9 +94,18 @@ def collect_object(
         dataset.append(name, records, attrs=a)
         records.clear()
 
+    out_of_reach = _out_of_reach(wrist, name, grid, todo, stats)
     for n, i in enumerate(todo, start=1):
         pid = int(grid.pose_ids[i])
         pose = Pose.from_array(grid.poses[i])
+        if i in out_of_reach:  # known unreachable: recorded as skipped, nothing moves
+            skipped.append(pid)
+            stats.skipped += 1
+            if n % batch == 0 or n == len(todo):
+                flush()
+            if on_grasp is not None:
+                on_grasp(stats.already_done + n, len(grid))
+            continue
         hand.open()
         hand.preshape(float(grid.preshapes[i]))
         try:
@@ -106,3 +128,29 @@ def collect_object(
         flush()  # an empty grid still registers the object
     stats.seconds = time.perf_counter() - t0
     return stats
+
+
+def _out_of_reach(
+    wrist: WristMotion, name: str, grid: GridPoses, todo: list[int], stats: CollectStats
+) -> set[int]:
+    """Indices (into `grid`) among `todo` that the wrist's `reachable()` rules out, asked once
+    for all of them; empty when the wrist has no `reachable`."""
+    reachable = getattr(wrist, "reachable", None)
+    if reachable is None or not todo:
+        return set()
+    t = time.perf_counter()
+    ok = np.asarray(reachable(grid.poses[todo]), dtype=bool).reshape(-1)
+    if ok.shape != (len(todo),):
+        raise ActiveTouchError(
+            f"the wrist's reachable() gave {ok.shape[0]} verdicts for {len(todo)} poses"
+        )
+    stats.checked = len(todo)
+    stats.reachable = int(ok.sum())
+    log.info(
+        "%s: the arm reaches %d of %d pending grid poses (checked in %.1f s)",
+        name,
+        stats.reachable,
+        stats.checked,
+        time.perf_counter() - t,
+    )
+    return {i for i, good in zip(todo, ok, strict=True) if not good}

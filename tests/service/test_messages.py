@@ -312,3 +312,53 @@ def test_zenoh_settings_are_explicit_and_local() -> None:
             validate_endpoint(bad)
     with pytest.raises(ConfigError, match="mode"):
         ZenohSettings(mode="router-ish")
+
+
+def test_robot_time_fields_are_optional_and_old_results_still_decode() -> None:
+    """A result of a daemon from before robot time (no motion_s, ...) decodes with zeros; the
+    new fields round-trip and are validated; MotionStats is a strict, versioned message."""
+    old = (
+        b'{"v":1,"session_id":"demo-7","label":"cup","probability":0.99,"labels":["cup"],'
+        b'"moves":1,"skipped":0,"planning_s":0.002,"elapsed_s":0.08,"policy":"tree","seed":7,'
+        b'"object":"cup","stop_reason":"confident","pose_ids":[4]}'
+    )
+    res = m.decode(old, m.RecognizeResult)
+    assert (res.motion_s, res.motion_planning_s, res.grasp_s) == (0.0, 0.0, 0.0)
+    assert res.planning_s == 0.002 and res.pose_ids == [4]  # the other fields as they were
+    new = m.RecognizeResult(
+        session_id="s",
+        label="cup",
+        probability=0.9,
+        labels=["cup"],
+        moves=1,
+        motion_s=12.5,
+        motion_planning_s=0.25,
+        grasp_s=3.0,
+    )
+    back = m.decode(m.encode(new), m.RecognizeResult)
+    assert (back.motion_s, back.motion_planning_s, back.grasp_s) == (12.5, 0.25, 3.0)
+    bad = json.loads(m.encode(new))
+    bad["grasp_s"] = -1.0
+    with pytest.raises(MessageError, match="field `grasp_s`"):
+        m.decode(json.dumps(bad).encode(), m.RecognizeResult)
+
+    progress = m.decode(
+        b'{"v":1,"session_id":"s","move":1,"pose":null,"n_contacts":0,"top3":[]}', m.Progress
+    )
+    assert progress.motion_s == 0.0
+    assert (
+        m.decode(
+            m.encode(m.Progress(**{**msgspec.structs.asdict(progress), "motion_s": 4.5})),
+            m.Progress,
+        ).motion_s
+        == 4.5
+    )
+
+    stats = m.MotionStats(robot_s=3.5, planning_s=0.1, moves=2)
+    assert m.decode(m.encode(stats), m.MotionStats) == stats
+    assert m.decode(b'{"v":1}', m.MotionStats) == m.MotionStats()
+    with pytest.raises(MessageError, match="field `moves`"):
+        m.decode(b'{"v":1,"moves":-1}', m.MotionStats)
+    with pytest.raises(MessageError, match="robot_seconds"):
+        m.decode(b'{"v":1,"robot_seconds":1.0}', m.MotionStats)  # unknown field: a typo
+    assert Keys("b").arm_motion_stats == "activetouch/b/arm/motion_stats"

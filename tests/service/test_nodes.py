@@ -33,10 +33,13 @@ from activetouch.service.messages import (
     Empty,
     HandStateMsg,
     JointStateMsg,
+    MotionStats,
+    MoveWristRequest,
     PreshapeRequest,
     Reply,
     decode,
     encode,
+    pose_to_msg,
 )
 from activetouch.service.nodes import (
     AliveNodes,
@@ -546,3 +549,66 @@ def test_arm_estop_enable_disable_reach_the_device(remote_arm: RemoteArm, arm: F
     remote_arm.disable()
     remote_arm.estop()
     assert [c[0] for c in arm.calls] == ["enable", "disable", "estop"]
+
+
+def test_motion_stats_are_served_at_once_and_move_wrist_still_replies_null(
+    remote_arm: RemoteArm, arm: FakeArm, client_session
+) -> None:
+    """``arm/motion_stats`` answers the node's wrist counters (RemoteArm.robot_seconds /
+    planning_seconds), also while a motion runs; ``arm/move_wrist`` replies null as before."""
+    keys = Keys(ROBOT)
+    session = client_session.session
+    [r] = list(
+        session.get(
+            keys.arm_move_wrist,
+            payload=encode(
+                MoveWristRequest(
+                    pose=pose_to_msg(
+                        Pose(np.array([0.1, 0.0, 0.3]), np.array([0.0, 0.0, 0.0, 1.0]))
+                    )
+                )
+            ),
+            timeout=5.0,
+        )
+    )
+    assert decode(r.ok.payload.to_bytes(), Reply[None]).result is None
+    assert (remote_arm.robot_seconds, remote_arm.planning_seconds) == (0.0, 0.0)
+    arm.robot_seconds, arm.planning_seconds, arm.moves = 12.5, 0.25, 3
+    assert (remote_arm.robot_seconds, remote_arm.planning_seconds) == (12.5, 0.25)
+    [r] = list(session.get(keys.arm_motion_stats, timeout=5.0))
+    stats = decode(r.ok.payload.to_bytes(), Reply[MotionStats]).result
+    assert stats == MotionStats(robot_s=12.5, planning_s=0.25, moves=3)
+
+    long = JointTrajectory(
+        names=FakeArm.NAMES, times=np.array([0.0, 100.0]), positions=np.zeros((2, 6))
+    )
+    errors: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            remote_arm.execute(long)
+        except BaseException as e:  # the stop below ends it
+            errors.append(e)
+
+    t = threading.Thread(target=run)
+    t.start()
+    try:
+        assert arm.executing.wait(5.0)
+        other = client_session.closing(RemoteArm(session, ROBOT, timeout=1.0))
+        t0 = time.monotonic()
+        assert other.robot_seconds == 12.5  # beside the running execute, not behind it
+        assert time.monotonic() - t0 < 0.5 and arm.executing.is_set()
+    finally:
+        arm.stop()
+        t.join(timeout=10.0)
+    assert not t.is_alive() and isinstance(errors[0], DataError)
+
+
+def test_motion_stats_of_a_node_without_a_wrist_are_zero(
+    arm: FakeArm, node_session: ZenohSession, client_session
+) -> None:
+    node_session.closing(ArmNode(arm, node_session.session, ROBOT, state_hz=0.0))
+    ra = client_session.closing(RemoteArm(client_session.session, ROBOT, timeout=3.0))
+    ra.connect()
+    arm.robot_seconds = 9.0  # the arm's own attribute; this node has no motion layer
+    assert (ra.robot_seconds, ra.planning_seconds) == (0.0, 0.0)

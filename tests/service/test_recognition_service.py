@@ -125,3 +125,25 @@ def test_arm_cli_enables_through_the_arm_node(start_fake_daemon, capsys) -> None
     _daemon, ep = start_fake_daemon()
     assert cli_main(["arm", "enable", "--connect", ep, "--robot", ROBOT]) == 0
     assert "enabled" in capsys.readouterr().out
+
+
+def test_robot_seconds_cross_the_wire(start_fake_daemon) -> None:
+    """Through Zenoh the daemon's session reads the arm node's counters (arm/motion_stats via
+    RemoteArm): the result's motion_s is what the node's wrist counted, progress grows to it."""
+    daemon, ep = start_fake_daemon(["session.stable_grasps=1000"])
+    wrist = daemon.devices.wrist
+    before = wrist.robot_seconds
+    events: list = []
+    with open_client([ep], ROBOT, timeout=10.0) as client:
+        res = client.recognize(
+            RecognizeRequest(policy="random", max_moves=3, seed=2, object="cup"),
+            on_progress=events.append,
+            timeout=60.0,
+        )
+    moved = wrist.robot_seconds - before
+    assert res.moves == 3 and moved > 0
+    assert abs(res.motion_s - moved) < 1e-9
+    assert res.motion_planning_s == 0.0 and res.grasp_s > 0
+    steps = [e.motion_s for e in events]
+    assert len(steps) == 3 and steps == sorted(steps) and steps[0] > 0
+    assert abs(steps[-1] - res.motion_s) < 1e-9

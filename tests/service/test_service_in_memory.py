@@ -119,3 +119,23 @@ def test_bad_requests_are_refused_before_anything_moves(trained_home: Path) -> N
     finally:
         svc.close()
         devices.close()
+
+
+def test_the_result_reports_the_wrists_robot_seconds(trained_home: Path) -> None:
+    """RecognizeResult.motion_s is the devices' wrist robot seconds over the recognition (the
+    service reads them through the session's wrapped wrist); grasp_s the hand's time."""
+    svc, devices = _service(trained_home, "hand.close_s=0.01")
+    k = Keys(ROBOT)
+    try:
+        devices.wrist.robot_seconds = 100.0  # earlier motions: not this recognition's
+        q = FakeQuery(RecognizeRequest(policy="random", max_moves=3, seed=4, object="cup"))
+        svc.submit(k.recognize, q)
+        res = _wait(q)["result"]
+        moved = devices.wrist.robot_seconds - 100.0
+        assert res["moves"] >= 1 and moved > 0
+        assert abs(res["motion_s"] - moved) < 1e-9
+        assert res["motion_planning_s"] == 0.0  # the fake's floating wrist plans nothing
+        assert 0.01 * res["moves"] <= res["grasp_s"] < res["elapsed_s"]
+    finally:
+        svc.close()
+        devices.close()

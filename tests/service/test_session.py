@@ -8,6 +8,7 @@ import pytest
 from activetouch import paths
 from activetouch.errors import ConfigError, UnreachableError
 from activetouch.interfaces import Grasp, Pose
+from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.policies import make_policy
 from activetouch.service.recognize import recognize_in_twin
 from activetouch.service.session import NO_LABEL, RecognitionSession, display_label
@@ -270,3 +271,122 @@ def test_table_contacts_are_dropped_on_a_non_twin_device(trained_home, small_mod
     # 3 cm above the table it is the object's: kept (so the test can tell the difference).
     above, _ = _session_on_fakes(trained_home, small_model, adding(0.03), 2)
     assert sum(map(len, above.contacts)) == sum(map(len, plain.contacts)) + 2
+
+
+class ReachWrist(WristMotion):
+    """Wraps a wrist motion and says which poses it reaches (`reach(i)` for pose index i),
+    as Baxter's motion layer does; records the poses it was asked to move to."""
+
+    def __init__(self, wrist, reach):
+        self.wrist, self.reach = wrist, reach
+        self.asked: list[int] = []  # how many poses each reachable() call got
+        self.moved: list[np.ndarray] = []
+
+    def reachable(self, poses: np.ndarray) -> np.ndarray:
+        self.asked.append(len(poses))
+        return np.array([self.reach(i) for i in range(len(poses))])
+
+    def move_to(self, pose: Pose) -> None:
+        self.moved.append(pose.as_array())
+        self.wrist.move_to(pose)
+
+    @property  # type: ignore[override]
+    def robot_seconds(self) -> float:
+        return self.wrist.robot_seconds
+
+    @property  # type: ignore[override]
+    def planning_seconds(self) -> float:
+        return self.wrist.planning_seconds
+
+
+def _twin_session(home, model, wrist_wrap=None, seed=3, max_moves=6, on_progress=None):
+    """A tree-policy session on a fresh floating twin with the bottle; also the durations of
+    the trajectories the twin's arm completed."""
+    cfg = small_config()
+    lib = ObjectLibrary(paths.objects_dir(home))
+    pol = make_policy("tree", cfg.planner, model.observation, model.classifier.kernel())
+    with open_twin(lib.get("bottle"), cfg.sim, seed=seed) as twin:
+        durations: list[float] = []
+        execute = twin.wrist.arm.execute
+
+        def recording(traj):  # the trajectories the twin's arm completed
+            execute(traj)
+            durations.append(float(traj.times[-1] - traj.times[0]))
+
+        twin.wrist.arm.execute = recording
+        wrist = wrist_wrap(twin.wrist) if wrist_wrap else twin.wrist
+        s = RecognitionSession(
+            twin.hand,
+            wrist,
+            model,
+            pol,  # type: ignore[arg-type]
+            type(cfg.session)(max_moves=max_moves),
+            np.random.default_rng(seed),
+            on_progress,
+            support_z=twin.support_z,
+        )
+        return s.run(), wrist, durations
+
+
+def test_robot_time_of_a_floating_twin_recognition(trained_home, small_model):
+    events = []
+    res, wrist, durations = _twin_session(trained_home, small_model, on_progress=events.append)
+    assert res.moves >= 1 and len(durations) == res.moves
+    assert res.motion_s == pytest.approx(sum(durations), rel=1e-9) and res.motion_s > 0
+    assert res.motion_s == pytest.approx(wrist.robot_seconds)  # a fresh twin: all of it
+    assert res.motion_planning_s == 0.0  # a floating wrist plans nothing
+    assert 0 < res.grasp_s < res.elapsed_s
+    assert res.total_s == pytest.approx(res.motion_s + res.grasp_s + res.planning_s)
+    assert res.unreachable == 0 and res.reachability_s == 0.0
+    moved = [e.motion_s for e in events]
+    assert moved == sorted(moved) and moved[-1] == pytest.approx(res.motion_s)
+
+
+def test_unreachable_poses_are_ruled_out_before_the_first_grasp(trained_home, small_model):
+    """A wrist with `reachable` is asked once for every model pose; the unreachable ones are
+    never moved to, never skipped, never planned; with every pose reachable the session is the
+    one without the check (the floating twin's results do not change)."""
+    n = len(small_model.observation.pose_xyz)
+    plain, _, _ = _twin_session(trained_home, small_model)
+    every, w_all, _ = _twin_session(
+        trained_home, small_model, lambda w: ReachWrist(w, lambda i: True)
+    )
+    assert w_all.asked == [n] and every.unreachable == 0
+    assert every.pose_ids == plain.pose_ids and every.labels == plain.labels
+    assert every.probabilities == plain.probabilities
+
+    # Rule out the poses the plain run grasped at (and every third one).
+    out = set(plain.pose_ids) | set(range(0, n, 3))
+    res, w, _ = _twin_session(
+        trained_home, small_model, lambda w: ReachWrist(w, lambda i: i not in out)
+    )
+    assert w.asked == [n] and res.unreachable == len(out)
+    assert res.moves >= 1 and not set(res.pose_ids) & out
+    poses = np.concatenate(
+        [small_model.observation.pose_xyz, small_model.observation.pose_quat], axis=1
+    )
+    for p in w.moved:
+        i = int(np.argmin(np.linalg.norm(poses - p, axis=1)))
+        assert i not in out
+    assert len(w.moved) == res.moves + res.skipped  # skips: only poses that were tried
+
+
+def test_recognize_in_twin_runs_other_arms_on_the_configured_devices(
+    trained_home, small_model, monkeypatch
+):
+    """`arm.type` other than twin-floating: recognize_in_twin places the object through the
+    devices' sim/place (the fakes here: no physics) and reports their robot seconds."""
+    from activetouch.config import load_config
+    from activetouch.sim import twin
+
+    cfg = load_config(None, ["grid.step_deg=40", "hand.type=fake", "arm.type=fake"])
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    with monkeypatch.context() as mp:
+        mp.setattr(twin, "open_twin", lambda *a, **k: pytest.fail("opened the floating twin"))
+        res = recognize_in_twin(small_model, lib, "sphere", "random", 0, cfg, max_moves=6)
+        again = recognize_in_twin(small_model, lib, "sphere", "random", 0, cfg, max_moves=6)
+    assert 1 <= res.moves <= 6 and res.pose_ids == again.pose_ids
+    assert sum(len(c) for c in res.contacts) > 0  # the fake hand replayed sphere grasps
+    assert res.motion_s > 0 and res.motion_s == pytest.approx(again.motion_s)
+    floating = _run(trained_home, small_model, obj="sphere", max_moves=4)
+    assert floating.motion_s > 0

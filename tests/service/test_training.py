@@ -116,3 +116,72 @@ def test_per_object_meta_matches_datasets_made_before_layouts(tmp_path):
     assert "layout" not in dataset_meta(cfg)["grid"]
     cfg.grid.layout = "shared"
     assert dataset_meta(cfg)["grid"]["layout"] == "shared"
+
+
+class ReachingWrist:
+    """The twin's wrist with a `reachable()` (as Baxter's motion layer has): poses whose index
+    in the asked array is in `out` are unreachable; records the asks and the moves."""
+
+    def __init__(self, wrist, out_ids, grid):
+        self.wrist, self.grid = wrist, grid
+        self.out_ids = set(out_ids)
+        self.asked: list[int] = []
+        self.moved: list = []
+
+    def reachable(self, poses):
+        self.asked.append(len(poses))
+        ids = [self._id(p) for p in poses]
+        return [i not in self.out_ids for i in ids]
+
+    def _id(self, p) -> int:
+        import numpy as np
+
+        i = int(np.argmin(np.linalg.norm(self.grid.poses - np.asarray(p), axis=1)))
+        return int(self.grid.pose_ids[i])
+
+    def move_to(self, pose) -> None:
+        self.moved.append(self._id(pose.as_array()))
+        self.wrist.move_to(pose)
+
+
+def test_collection_skips_the_poses_the_arm_cannot_reach_without_moving(tmp_path):
+    cfg = small_config()
+    lib = ObjectLibrary(paths.objects_dir(tmp_path))
+    lib.ensure_builtins(["sphere"])
+    spec = lib.get("sphere")
+    grid = object_grids({"sphere": spec.extents}, cfg.grid)["sphere"]
+    ds = Dataset.create_or_open(tmp_path / "ds", dataset_meta(cfg))
+    out = {int(p) for p in grid.pose_ids[::3]}
+    with open_twin(spec, cfg.sim) as twin:
+        wrist = ReachingWrist(twin.wrist, out, grid)
+        stats = collect_object(twin.hand, wrist, ds, "sphere", grid, batch=4)  # type: ignore[arg-type]
+    assert wrist.asked == [len(grid)]  # once, for every pending pose
+    assert stats.checked == len(grid) and stats.reachable == len(grid) - len(out)
+    assert not set(wrist.moved) & out and len(wrist.moved) == len(grid) - len(out)
+    skipped = set(Dataset.open(tmp_path / "ds").attrs("sphere")[SKIPPED_ATTR])
+    assert out <= skipped and stats.skipped == len(skipped)
+    assert stats.grasped + stats.skipped == len(grid)
+
+    # Nothing pending: the arm is not asked again.
+    with open_twin(spec, cfg.sim) as twin:
+        again = ReachingWrist(twin.wrist, out, grid)
+        stats = collect_object(twin.hand, again, ds, "sphere", grid)  # type: ignore[arg-type]
+    assert again.asked == [] and stats.reachable is None and stats.already_done == len(grid)
+
+
+def test_train_prints_how_many_grid_poses_the_arm_reaches(tmp_path, capsys, monkeypatch):
+    from activetouch.service import training
+
+    real = training.collect
+
+    def collect_with_an_arm(*args, **kwargs):  # as a collection with reachable() reports it
+        stats = real(*args, **kwargs)
+        stats[0].reachable, stats[0].checked = 5, 9
+        return stats
+
+    monkeypatch.setattr(training, "collect", collect_with_an_arm)
+    args = ["train", "--objects", "sphere,cup", "--data", str(tmp_path), "--workers", "1"]
+    assert main([*args, "--set", "grid.step_deg=60"]) == 0
+    out = capsys.readouterr().out
+    assert "sphere: the arm reaches 5 of the 9 grid poses checked" in out
+    assert "cup: the arm reaches" not in out

@@ -90,6 +90,7 @@ class FloatingWristMotion(WristMotion):
         return pose_to_wrist_joints(self.placement.to_base(pose))
 
     def move_to(self, pose: Pose) -> None:
+        self.last_motion_s = 0.0  # stays 0 unless this motion completes
         goal = self.target_joints(pose)
         limits = self.arm.limits
         bad = limits.violations(WRIST_JOINTS, goal[None, :])
@@ -97,7 +98,6 @@ class FloatingWristMotion(WristMotion):
             raise UnreachableError(f"wrist pose outside the workspace: {'; '.join(bad)}")
         start = self.arm.joint_state().position
         trajectory = straight_trajectory(start, goal, limits.velocity)
-        self.last_motion_s = 0.0  # stays 0 if the arm refuses or stops (nothing completed)
         self.arm.execute(trajectory)
         # Robot time is the trajectory's own duration (what a real arm would take), not the
         # wall time the twin needed to replay it.

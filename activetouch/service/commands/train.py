@@ -101,6 +101,12 @@ def train(
             f"[yellow]{few}[/]" if sh.high else few,
         )
     console.print(table)
+    for s in stats:
+        if s.reachable is not None:  # the arm said which grid poses it reaches (collect.py)
+            console.print(
+                f"{s.name}: the arm reaches {s.reachable} of the {s.checked} grid poses checked",
+                highlight=False,
+            )
     for line in advice(list(shares.values()), cfg):
         console.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
     if any(s.skipped for s in stats):
