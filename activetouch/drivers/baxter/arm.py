@@ -16,6 +16,9 @@ ROS 1 bytes on the bridge's keys (`activetouch.drivers.baxter.ros1`).
 - If commands stop (daemon killed, network cut), Baxter leaves position control after
   ``joint_command_timeout`` and holds its current joint angles.
 - Enabling is explicit (`enable`, `disable`, `reset`); `enable_on_connect` opts in.
+- ``emulate = "twin"``: no robot; the same driver against the byte-level emulator in this
+  process on loopback Zenoh, its joints carrying the Baxter twin's arm and hand
+  (`activetouch.drivers.baxter.twin_emulated`); it counts as simulated.
 """
 
 from __future__ import annotations
@@ -40,9 +43,11 @@ from activetouch.errors import (
     UnreachableError,
 )
 from activetouch.interfaces import Arm, JointLimits, JointState, JointTrajectory, StopLatch
+from activetouch.planning.motion.robot import BaxterMotionConfig
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
+    from activetouch.planning.motion.base import WristMotion
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +61,9 @@ VELOCITY = (1.5, 1.5, 1.5, 1.5, 4.0, 4.0, 4.0)
 class BaxterArmConfig(ArmConfig):
     """``[arm] type = "baxter"``: one Baxter arm behind zenoh-bridge-ros1."""
 
-    side: str = "left"
+    # "left" | "right"; empty: `motion.side` ("left" by default). The motion layer's side
+    # follows this one (a twin-baxter config names its side only in [arm.motion]).
+    side: str = ""
     # The chunk after the md5 in the bridge's keys. The bridge's default is the literal "*"
     # (it puts and subscribes on ".../*/topic"), which also matches any named namespace.
     bridge_namespace: str = ros1.DEFAULT_BRIDGE_NAMESPACE
@@ -82,9 +89,32 @@ class BaxterArmConfig(ArmConfig):
     enable_timeout_s: float = 2.0  # robot_enable.py: enable 2 s, disable 5 s, reset/stop 3 s
     super_stop_on_stop: bool = False  # stop() also asserts Baxter's e-stop (needs a reset)
     acceleration_rad_s2: float = 1.5  # reported limit for the motion layer's timing
+    # The motion layer (IK, collision-checked paths, timing): ``[arm.motion]``, as twin-baxter.
+    motion: BaxterMotionConfig = field(default_factory=BaxterMotionConfig)
+    # "twin": no robot; an in-process emulator on loopback Zenoh whose joints carry the Baxter
+    # twin's arm and the twin's hand (twin_emulated.py). The driver is unchanged.
+    emulate: str = ""
+    # emulate = "twin": trajectory seconds between the twin arm's checked samples (twin-baxter's
+    # setting, so a twin-baxter config runs with `--set arm.type=baxter`).
+    sample_dt: float = 0.01
+    # twin-baxter's pacing, accepted for the same reason and ignored: the emulator runs in real
+    # time, as the robot does.
+    time_scale: float = 0.0
+
+    @property
+    def simulated(self) -> bool:  # type: ignore[override]
+        # An emulated robot stands in for the real one: recognitions place the object.
+        return self.emulate == "twin"
 
     def check(self) -> None:
+        self.side = self.side or self.motion.side
         ros1.joint_names(self.side)
+        self.motion.side = self.side
+        self.motion.check()
+        if self.emulate not in ("", "twin"):
+            raise ConfigError(f"arm.emulate: {self.emulate!r} is not one of '', 'twin'")
+        if not 0 < self.sample_dt <= 0.01:
+            raise ConfigError(f"arm.sample_dt must be in (0, 0.01] s, got {self.sample_dt}")
         if self.bridge_format not in ros1.BRIDGE_FORMATS:
             raise ConfigError(
                 f"arm.bridge_format: expected one of {ros1.BRIDGE_FORMATS}, "
@@ -112,7 +142,30 @@ class BaxterArmConfig(ArmConfig):
 
     def make(self, ctx: DeviceContext) -> Arm:
         self.check()
+        if self.emulate == "twin":
+            from activetouch.drivers.baxter.twin_emulated import make_twin_emulated
+
+            return make_twin_emulated(self, ctx)
         return BaxterArm(self)
+
+    def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:
+        """`BaxterWristMotion`: with ``emulate = "twin"`` the twin-baxter type's (placement and
+        object shape from the twin world); on the robot the workcell's table and object frame
+        (the object has no shape yet: transits do not avoid it)."""
+        if self.emulate == "twin":
+            from activetouch.drivers.baxter.twin_emulated import make_twin_emulated_wrist
+
+            return make_twin_emulated_wrist(self, arm, ctx)
+        from activetouch.planning.motion.base import workcell_placement
+        from activetouch.planning.motion.baxter import BaxterWristMotion
+        from activetouch.planning.motion.robot import load_arm
+
+        wc = ctx.cfg.workcell
+        # the same shared name as twin-baxter's model (sim/baxter.py BAXTER_MODEL)
+        model = ctx.shared("baxter-model", lambda: load_arm(self.motion))
+        return BaxterWristMotion(
+            arm, workcell_placement(wc), wc.table_center, wc.table_size, self.motion, model
+        )
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,9 @@ one cannot hide the same bug in the other):
 - honours ``/robot/set_super_enable`` (Bool), ``set_super_stop`` and ``set_super_reset``
   (Empty) with the robot_enable.py semantics;
 - faults on demand: dropped or delayed joint states, a lagging joint, an e-stop press,
-  a disabled robot.
+  a disabled robot;
+- optionally a `Body` that moves with the joints (the Baxter twin: ``arm.emulate = "twin"``,
+  `activetouch.drivers.baxter.twin_emulated`), which may block a step (a contact).
 
 Run it: ``python -m activetouch.drivers.baxter.emulator --listen tcp/127.0.0.1:7448``.
 """
@@ -30,6 +32,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -188,11 +191,25 @@ class EmulatorSettings:
     start: dict[str, float] = field(default_factory=dict)  # joint name -> initial position
 
 
-class BaxterEmulator:
-    """The emulated robot on an open Zenoh session (`zenoh.Session`). Close it (or use `with`)."""
+class Body(Protocol):
+    """Something the emulated joints carry (e.g. the Baxter twin's arm and hand)."""
 
-    def __init__(self, session, settings: EmulatorSettings | None = None) -> None:
+    def follow(self, side: str, q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+        """Move `side`'s arm from `q_from` to `q_to` (s0..w2, one control tick); return where it
+        got (`q_to`, or short of it when something blocks the way). Called by the control loop
+        with the emulator's lock held: no Zenoh, no waiting on the emulator."""
+        ...
+
+
+class BaxterEmulator:
+    """The emulated robot on an open Zenoh session (`zenoh.Session`). Close it (or use `with`).
+    `body`, if given, moves with the joints and may block them (`Body`)."""
+
+    def __init__(
+        self, session, settings: EmulatorSettings | None = None, body: Body | None = None
+    ) -> None:
         self.s = settings or EmulatorSettings()
+        self.body = body
         self._session = session
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -352,6 +369,23 @@ class BaxterEmulator:
         with self._lock:
             return self.arms[side].timeout_s
 
+    def holding(self, side: str) -> bool:
+        """True once `side`'s arm holds (disabled, or no command within its timeout): from
+        then on it does not move until a new command comes."""
+        with self._lock:
+            arm = self.arms[side]
+            return not (self.enabled and time.monotonic() - arm.last_command <= arm.timeout_s)
+
+    def teleport(self, side: str, q: np.ndarray) -> None:
+        """Put `side`'s arm at `q` at once, holding (a simulated reset, e.g. after placing an
+        object in the twin; never what a robot does). The body is not told."""
+        with self._lock:
+            arm = self.arms[side]
+            arm.q = np.clip(np.asarray(q, dtype=np.float64), _LOWER, _UPPER)
+            arm.target = arm.q.copy()
+            arm.velocity = np.zeros(7)
+            arm.last_command = -math.inf
+
     # --- the control loop
     def _step(self, dt: float, now: float) -> None:
         for side, arm in self.arms.items():
@@ -367,7 +401,13 @@ class BaxterEmulator:
                 vmax[j] *= self.faults.lag_speed_factor
             goal = np.clip(arm.target, _LOWER, _UPPER)
             v = np.clip((goal - arm.q) / self.s.lag_tau_s, -vmax, vmax)
-            arm.q = np.clip(arm.q + v * dt, _LOWER, _UPPER)
+            q = np.clip(arm.q + v * dt, _LOWER, _UPPER)
+            if self.body is not None and np.any(q != arm.q):
+                # The body may stop short (a contact): the arm is where the body got.
+                got = np.asarray(self.body.follow(side, arm.q.copy(), q.copy()))
+                q = np.clip(got, _LOWER, _UPPER)
+                v = (q - arm.q) / dt
+            arm.q = q
             arm.velocity = v
 
     def _snapshot(self, now: float) -> tuple[bytes, bytes]:
