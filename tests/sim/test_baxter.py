@@ -4,6 +4,7 @@ Baxter's hand, and a whole recognition on ``hand.type=twin`` + ``arm.type=twin-b
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import threading
@@ -214,3 +215,47 @@ def test_recognition_on_the_twin_hand_and_the_baxter_twin(trained_home, small_mo
         assert np.linalg.norm(arm.world.wrist_pose.xyz - at.xyz) < 1e-6
     finally:
         devices.close()
+
+
+def test_place_homes_the_arm_through_the_rigs_after_place_hook(trained_home, baxter) -> None:
+    """twin-baxter hooks its homing into `TwinRig.after_place` (ctx.place stays the rig's)."""
+    from activetouch.devices import DeviceContext
+    from activetouch.service.messages import SimPlaceRequest
+    from activetouch.sim.baxter import BAXTER_MODEL
+    from activetouch.sim.devices import TWIN
+
+    cfg = load_config(BAXTER_TOML)
+    ctx = DeviceContext(cfg, trained_home)
+    ctx.shared(BAXTER_MODEL, lambda: baxter)  # the module's model: no second load
+    try:
+        arm = cfg.arm.make(ctx).inner  # the arm alone: no motion layer needed here
+        rig = ctx.shared(TWIN, lambda: pytest.fail("no twin rig"))
+        assert ctx.place == rig.place and rig.after_place == [arm.home]
+        ready = arm.model.ready.copy()
+        q = ready + 0.1
+        arm.execute(line(ready, q, 1.0, arm.joint_names))
+        assert np.abs(arm.joint_state().position - q).max() < 1e-9
+        ctx.place(SimPlaceRequest(object="cup", seed=0))
+        np.testing.assert_allclose(arm.joint_state().position, ready, atol=1e-12)
+    finally:
+        ctx.close()
+
+
+@pytest.mark.slow
+def test_recognize_cli_on_the_baxter_twin_reports_robot_seconds(trained_home, capsys) -> None:
+    """`activetouch recognize --set arm.type=twin-baxter --config deploy/baxter-twin.toml`:
+    the poses Baxter cannot reach are ruled out first, the JSON has the robot time."""
+    from activetouch.service.cli import main
+
+    common = ["recognize", "--object", "cup", "--data", str(trained_home), "--config"]
+    common += [str(BAXTER_TOML), "--set", "arm.type=twin-baxter", "--set", "grid.step_deg=40"]
+    assert main([*common, "--json", "--max-moves", "4"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert 1 <= doc["moves"] <= 4 and doc["unreachable"] > 0 and doc["skipped"] == 0
+    assert doc["motion_s"] > 1.0 * doc["moves"]  # seconds per Baxter move, not a teleport
+    assert doc["grasp_s"] > 0 and doc["motion_planning_s"] > 0
+    parts = doc["motion_s"] + doc["grasp_s"] + doc["planning_s"] + doc["motion_planning_s"]
+    assert doc["total_s"] == pytest.approx(parts)
+    assert main([*common, "--max-moves", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "robot time:" in out and "moving" in out and "out of the arm's reach" in out
