@@ -200,8 +200,6 @@ class TwinEmulatedBaxterArm(BaxterArm):
 
 def make_twin_emulated(cfg: BaxterArmConfig, ctx: DeviceContext) -> TwinEmulatedBaxterArm:
     """Start the emulator on the shared twin rig and return the driver pointed at it."""
-    from activetouch.drivers.baxter.emulator import BaxterEmulator, EmulatorSettings
-    from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
     from activetouch.sim.baxter import (
         ObjectShapes,
         TwinBaxterArm,
@@ -223,9 +221,24 @@ def make_twin_emulated(cfg: BaxterArmConfig, ctx: DeviceContext) -> TwinEmulated
         start_tolerance_rad=cfg.start_tolerance_rad,
     )
     twin = TwinBaxterArm(rig.world, model, twin_cfg, ObjectShapes(rig.library_root))
+    arm = start_emulated(cfg, twin)
+    ctx.on_close(arm.close_emulator)  # registered after the rig's close: runs before it
+    rig.after_place.append(arm.home)
+    return arm
+
+
+def start_emulated(
+    cfg: BaxterArmConfig, twin: Any, rate_hz: float = 100.0
+) -> TwinEmulatedBaxterArm:
+    """The emulator on a fresh loopback Zenoh endpoint, its `side` arm at `twin`'s ready pose
+    and carrying `twin` (a `TwinBaxterArm`, or anything with its joint_names, joint_state,
+    execute, home and model.ready), and the driver pointed at it (not yet connected)."""
+    from activetouch.drivers.baxter.emulator import BaxterEmulator, EmulatorSettings
+    from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+
+    cfg.check()  # resolves the side
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     zs = ZenohSession(ZenohSettings(listen=(endpoint,)))  # loopback, scouting off
-    rate_hz = 100.0
     follower = TwinFollower(twin, cfg.side, 1.0 / rate_hz)
     try:
         emu = BaxterEmulator(
@@ -236,7 +249,9 @@ def make_twin_emulated(cfg: BaxterArmConfig, ctx: DeviceContext) -> TwinEmulated
                 rate_hz=rate_hz,
                 # An emulated robot stands in for a twin, which needs no enabling.
                 enabled=True,
-                start=dict(zip(twin.joint_names, model.ready.tolist(), strict=True)),
+                start=dict(
+                    zip(twin.joint_names, np.asarray(twin.model.ready).tolist(), strict=True)
+                ),
             ),
             body=follower,
         )
@@ -246,10 +261,7 @@ def make_twin_emulated(cfg: BaxterArmConfig, ctx: DeviceContext) -> TwinEmulated
     driver_cfg = dataclasses.replace(
         cfg, connect=[endpoint], listen=[], zenoh_config="", emulate=""
     )
-    arm = TwinEmulatedBaxterArm(driver_cfg, emu, follower, zs)
-    ctx.on_close(arm.close_emulator)  # registered after the rig's close: runs before it
-    rig.after_place.append(arm.home)
-    return arm
+    return TwinEmulatedBaxterArm(driver_cfg, emu, follower, zs)
 
 
 def make_twin_emulated_wrist(
