@@ -100,6 +100,7 @@ def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int 
         "motion_planning_s": res.motion_planning_s,
         "total_s": res.total_s,
         "unreachable": res.unreachable,
+        "reachability_s": res.reachability_s,
     }
 
 
@@ -169,7 +170,11 @@ def _report(
         f"after {res.moves} grasps, {res.skipped} poses skipped, "
         f"stopped: {res.stop_reason}{verdict}"
     )
-    unreachable = f"; {res.unreachable} poses out of the arm's reach" if res.unreachable else ""
+    unreachable = (
+        f"; {res.unreachable} poses out of the arm's reach (checked in {res.reachability_s:.1f} s)"
+        if res.unreachable
+        else ""
+    )
     console.print(
         f"robot time: {res.total_s:.1f} s = moving {res.motion_s:.1f} s + grasping "
         f"{res.grasp_s:.1f} s + planning {res.planning_s + res.motion_planning_s:.1f} s "

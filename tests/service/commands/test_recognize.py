@@ -136,3 +136,20 @@ def test_an_object_outside_the_model_is_announced(trained_home, capsys):
         == 0
     )
     assert "is not one of the model's classes" in capsys.readouterr().out
+
+
+def test_recognize_reports_robot_time(trained_home, capsys):
+    """--json carries the robot time (moving, grasping, motion planning, total); the plain
+    summary prints it. The floating twin rules nothing out (it has no reachable())."""
+    args = ["recognize", "--object", "cup", "--data", str(trained_home), "--max-moves", "3"]
+    args += ["--set", "grid.step_deg=40"]
+    assert main([*args, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["motion_s"] > 0 and doc["grasp_s"] > 0 and doc["motion_planning_s"] == 0.0
+    assert doc["unreachable"] == 0 and doc["reachability_s"] == 0.0
+    parts = doc["motion_s"] + doc["grasp_s"] + doc["planning_s"] + doc["motion_planning_s"]
+    assert abs(doc["total_s"] - parts) < 1e-9
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "robot time:" in out and f"moving {doc['motion_s']:.1f} s" in out
+    assert "robot " in out.split("recognised:")[0]  # progress lines: robot seconds so far
