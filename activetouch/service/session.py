@@ -184,7 +184,7 @@ class RecognitionSession:
         ok = np.asarray(reachable(self._poses), dtype=bool).reshape(-1)
         res.reachability_s = time.perf_counter() - t
         if ok.shape != (len(self._poses),):
-            raise ConfigError(
+            raise ActiveTouchError(
                 f"the wrist's reachable() gave {ok.shape[0]} verdicts for {len(self._poses)} poses"
             )
         out = [int(i) for i in np.flatnonzero(~ok)]
