@@ -2,7 +2,8 @@
 on its byte-level emulator backed by the same twin world, on the same seeds.
 
     python benchmarks/reflex_end_to_end.py [--data DIR] [--seeds 0-9] [--loss 0 0.05]
-        [--objects cup,teapot,...] [--policy tree] [--workers 3] [--json FILE]
+        [--objects cup,teapot,...] [--policy tree] [--workers 2] [--stream-timeout-s 0.2]
+        [--json FILE]
 
 Trains the paper's 7 simulated objects into DIR (default: $ACTIVETOUCH_HOME or the user data
 directory) unless a model with exactly those objects is there already. Then, per object and
@@ -23,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -66,6 +68,16 @@ def ensure_model(root: Path, objects: list[str], cfg: Config) -> Path:
     return out
 
 
+FAILED: dict[str, Any] = {
+    "label": "",
+    "grasps": 0,
+    "elapsed_s": 0.0,
+    "pose_ids": [],
+    "contacts": [],
+    "stop_reason": "stream lost",
+}
+
+
 def summarise(res: Any, n_contacts: list[int]) -> dict[str, Any]:
     return {
         "label": res.label,
@@ -96,11 +108,12 @@ def run_direct(
 
 
 def run_driver(
-    root: str, obj: str, seeds: list[int], policy: str, loss: float
+    root: str, obj: str, seeds: list[int], policy: str, loss: float, timeout: float
 ) -> list[dict[str, Any]]:
     """The TakkTile driver on its twin-backed emulator, through the device layer, as `serve
     --set hand.type=reflex-takktile --set hand.emulate=twin` runs it (minus Zenoh)."""
     from activetouch.devices import make_devices
+    from activetouch.drivers.reflex.common import StreamLostError
     from activetouch.model import load_model
     from activetouch.planning.policies import make_policy
     from activetouch.service.messages import SimPlaceRequest
@@ -108,7 +121,13 @@ def run_driver(
     from activetouch.sim.devices import twin_rig
 
     cfg = load_config(
-        None, ["hand.type=reflex-takktile", "hand.emulate=twin", f"hand.emulate_loss={loss}"]
+        None,
+        [
+            "hand.type=reflex-takktile",
+            "hand.emulate=twin",
+            f"hand.emulate_loss={loss}",
+            f"hand.stream_timeout_s={timeout}",
+        ],
     )
     model = load_model(paths.default_model(Path(root)))
     devices = make_devices(cfg, root)
@@ -131,7 +150,14 @@ def run_driver(
                 np.random.default_rng(seed),
                 support_z=rig.world.support_z,
             )
-            res = session.run()
+            try:
+                res = session.run()
+            except StreamLostError as e:
+                # The state stream stopped for longer than hand.stream_timeout_s mid-command
+                # (on a loaded machine the emulator thread can starve): the run fails, as it
+                # would on the robot. Counted; the next run waits for the stream to return.
+                out.append({**FAILED, "error": str(e), "packets": {}})
+                continue
             row = summarise(res, [len(c) for c in res.contacts])
             after = devices.hand.stats()
             row["packets"] = {k: after.get(k, 0) - before.get(k, 0) for k in after}
@@ -141,8 +167,10 @@ def run_driver(
     return out
 
 
-def job(args: tuple[str, str, str, list[int], str, float]) -> tuple[str, str, list[dict]]:
-    kind, root, obj, seeds, policy, loss = args
+def job(
+    args: tuple[str, str, str, list[int], str, float, float],
+) -> tuple[str, str, list[dict]]:
+    kind, root, obj, seeds, policy, loss, timeout = args
     if kind == "direct":
         return kind, obj, run_direct(root, obj, seeds, policy)
     if kind == "direct-redraw":
@@ -150,7 +178,7 @@ def job(args: tuple[str, str, str, list[int], str, float]) -> tuple[str, str, li
         # pose: how often labels differ from noise alone (the driver's pads are read from
         # the twin's stream too, so its runs cannot repeat the twin's noise draws).
         return kind, obj, run_direct(root, obj, seeds, policy, ("sim.noise_mode=stream",))
-    return f"driver@{loss:g}", obj, run_driver(root, obj, seeds, policy, loss)
+    return f"driver@{loss:g}", obj, run_driver(root, obj, seeds, policy, loss, timeout)
 
 
 def first_divergence(a: dict, b: dict) -> str:
@@ -167,17 +195,20 @@ def table(results: dict[str, dict[str, list[dict]]], objects: list[str], seeds: 
     direct = results["direct"]
     lines = [
         "| hand | runs | correct | same label as the twin | grasps (mean) | "
-        "same first grasp's contact count | s per grasp (mean) |",
-        "|---|---|---|---|---|---|---|",
+        "same first grasp's contact count | s per grasp (mean) | runs failed: stream lost |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for variant, runs in results.items():
-        n = correct = same = same_first = 0
+        n = correct = same = same_first = failed = 0
         grasps: list[int] = []
         per_grasp: list[float] = []
         for obj in objects:
             for i, r in enumerate(runs[obj]):
                 d = direct[obj][i]
                 n += 1
+                if r.get("error"):
+                    failed += 1  # counted as a different label, and not in the means
+                    continue
                 correct += r["label"] == obj
                 same += r["label"] == d["label"]
                 same_first += bool(r["contacts"][:1] == d["contacts"][:1])
@@ -191,7 +222,7 @@ def table(results: dict[str, dict[str, list[dict]]], objects: list[str], seeds: 
             name = f"TakkTile driver, emulator, {float(variant.split('@')[1]):.0%} packet loss"
         lines.append(
             f"| {name} | {n} | {correct / n:.0%} | {same / n:.0%} | {np.mean(grasps):.2f} | "
-            f"{same_first / n:.0%} | {np.mean(per_grasp):.3f} |"
+            f"{same_first / n:.0%} | {np.mean(per_grasp):.3f} | {failed} |"
         )
     lines += ["", "Runs whose label differs from the twin's (object, seed: twin -> driver):", ""]
     any_diff = False
@@ -201,7 +232,10 @@ def table(results: dict[str, dict[str, list[dict]]], objects: list[str], seeds: 
         for obj in objects:
             for i, r in enumerate(runs[obj]):
                 d = direct[obj][i]
-                if r["label"] != d["label"]:
+                if r.get("error"):
+                    any_diff = True
+                    lines.append(f"- {variant}: {obj}, seed {seeds[i]}: failed ({r['error']})")
+                elif r["label"] != d["label"]:
                     any_diff = True
                     lines.append(
                         f"- {variant}: {obj}, seed {seeds[i]}: {d['label'] or '-'} "
@@ -220,16 +254,24 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", default="0-9")
     p.add_argument("--policy", default="tree")
     p.add_argument("--loss", type=float, nargs="+", default=[0.0, 0.05])
-    p.add_argument("--workers", type=int, default=3)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument(
+        "--stream-timeout-s",
+        type=float,
+        default=0.2,
+        help="hand.stream_timeout_s of the driver runs (raise it on a loaded machine: the "
+        "emulator thread shares the CPU)",
+    )
     p.add_argument("--json", default=None, help="write every run here")
     a = p.parse_args(argv)
     root = paths.data_dir(a.data)
     objects = [o for o in a.objects.split(",") if o]
     seeds = parse_seeds(a.seeds)
     ensure_model(root, list(PAPER_SIM_OBJECTS), load_config(None, []))  # --objects: a subset
-    jobs = [("direct", str(root), o, seeds, a.policy, 0.0) for o in objects]
-    jobs += [("direct-redraw", str(root), o, seeds, a.policy, 0.0) for o in objects]
-    jobs += [("driver", str(root), o, seeds, a.policy, loss) for loss in a.loss for o in objects]
+    t = a.stream_timeout_s
+    jobs = [("direct", str(root), o, seeds, a.policy, 0.0, t) for o in objects]
+    jobs += [("direct-redraw", str(root), o, seeds, a.policy, 0.0, t) for o in objects]
+    jobs += [("driver", str(root), o, seeds, a.policy, loss, t) for loss in a.loss for o in objects]
     results: dict[str, dict[str, list[dict]]] = {}
     t0 = time.perf_counter()
     # spawn: the workers start PyBullet and threads of their own; nothing forked mid-flight.
@@ -242,7 +284,8 @@ def main(argv: list[str] | None = None) -> int:
             )
     print(
         f"\n{len(objects)} objects x {len(seeds)} seeds, {a.workers} workers, "
-        f"{time.perf_counter() - t0:.0f} s\n"
+        f"{time.perf_counter() - t0:.0f} s, load average {os.getloadavg()[0]:.1f} on "
+        f"{os.cpu_count()} CPUs\n"
     )
     order = ["direct", "direct-redraw"] + [f"driver@{loss:g}" for loss in a.loss]
     results = {k: results[k] for k in order}

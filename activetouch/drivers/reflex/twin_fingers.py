@@ -19,7 +19,7 @@ commands the pads repeat their last reading.
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import numpy as np
@@ -107,21 +107,25 @@ class TwinFingers:
         return p, depth
 
     def _settle(
-        self, spool: np.ndarray, preshape: float, fingers: list[int], col: int, allowed
-    ) -> np.ndarray:
-        """The largest spools of `fingers` between the last reading's and `spool` at which
-        their link `col` (0 proximal, 1 distal) is no deeper than `allowed` (halvings down to
-        ~1.5 mrad, the resolution at which the twin's own close settles a finger)."""
+        self,
+        spool: np.ndarray,
+        preshape: float,
+        fingers: list[int],
+        past: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Where, between the last reading's spools and `spool`, `fingers` cross into
+        `past(pressures, depth) -> (len(fingers),) bool`: (last spools before, first spools
+        past), to within ~1.5 mrad (the resolution at which the twin's own close settles)."""
         lo = np.minimum(self.prev_spool[fingers], spool[fingers])
         hi = spool[fingers].copy()
         for _ in range(SETTLE_HALVINGS):
             mid = (lo + hi) / 2
             trial = spool.copy()
             trial[fingers] = mid
-            _, d = self._pose(trial, preshape)
-            ok = d[fingers, col] <= allowed[fingers]
-            lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
-        return lo
+            p, d = self._pose(trial, preshape)
+            crossed = past(p, d)
+            lo, hi = np.where(crossed, lo, mid), np.where(crossed, mid, hi)
+        return lo, hi
 
     def _read(self, spool: np.ndarray, preshape: float) -> np.ndarray:
         spool = np.minimum(spool, self.stall)
@@ -141,12 +145,16 @@ class TwinFingers:
             if not self.blocked[f] and (over[f, :5].any() or depth[f, 0] > allowed[f])
         ]
         if hit:
-            # The skin is far stiffer than the flexure: the proximal holds where it meets
-            # something (settled no deeper than allowed), the distal takes the rest.
-            deep = [f for f in hit if depth[f, 0] > allowed[f]]
+            # The skin is far stiffer than the flexure: the proximal holds where it first
+            # met something during this step (its pads sense, or it is pushed too deep), and
+            # the distal takes the rest of the step, as in the twin's close.
+            def prox_met(p: np.ndarray, d: np.ndarray) -> np.ndarray:
+                sensed = p[:27].reshape(3, 9)[hit, :5] > self.threshold
+                return sensed.any(axis=1) | (d[hit, 0] > allowed[hit])
+
+            _, first = self._settle(spool, preshape, hit, prox_met)
             held = spool.copy()
-            if deep:
-                held[deep] = self._settle(spool, preshape, deep, 0, allowed)
+            held[hit] = first
             hold, _ = self.joints(held, preshape)
             self.blocked[hit] = True
             self.hold[hit] = hold[hit]
@@ -154,7 +162,8 @@ class TwinFingers:
         bad = [f for f in range(3) if depth[f, 1] > allowed[f] and spool[f] > self.prev_spool[f]]
         if bad:
             # The distal cannot go that deep: the servo stalls short of it.
-            spool[bad] = self.stall[bad] = self._settle(spool, preshape, bad, 1, allowed)
+            last_ok, _ = self._settle(spool, preshape, bad, lambda p, d: d[bad, 1] > allowed[bad])
+            spool[bad] = self.stall[bad] = last_ok
             p, _ = self._pose(spool, preshape)
         if hit or bad:
             over = p[:27].reshape(3, 9) > self.threshold
