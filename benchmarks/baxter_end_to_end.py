@@ -27,6 +27,7 @@ import json
 import multiprocessing
 import sys
 import time
+from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -83,6 +84,7 @@ def run(
 ) -> list[dict[str, Any]]:
     """One set of devices for `variant`; a recognition of `obj` per seed."""
     from activetouch.devices import make_devices
+    from activetouch.errors import UnreachableError
     from activetouch.model import load_model
     from activetouch.planning.policies import make_policy
     from activetouch.service.messages import SimPlaceRequest
@@ -97,6 +99,19 @@ def run(
     try:
         wrist = devices.wrist
         emu = getattr(devices.arm, "emulator", None)
+        # Why poses were skipped: each move the session tried and the motion layer refused
+        # (no plan) or the arm could not finish (a contact in the twin).
+        skips: list[str] = []
+        move_to = wrist.move_to
+
+        def recording_move_to(pose: Any) -> None:
+            try:
+                move_to(pose)
+            except UnreachableError as e:
+                skips.append(str(e))
+                raise
+
+        wrist.move_to = recording_move_to  # type: ignore[method-assign]
         for seed in seeds:
             t0 = time.perf_counter()
             devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
@@ -115,6 +130,7 @@ def run(
                 np.random.default_rng(seed),
                 support_z=placement.support_z(cfg.workcell.table_top_z),
             )
+            skips.clear()
             res = session.run()
             row = {
                 "seed": seed,
@@ -129,10 +145,14 @@ def run(
                 "total_robot_s": res.total_s,
                 "wall_s": time.perf_counter() - t0,
                 "setup_s": setup_s,
+                "skip_reasons": list(skips),
+                "blocked": sum("blocked" in r for r in skips),
             }
             if emu is not None:
                 row["joint_commands"] = len(emu.commands(cfg.arm.side)) - cmds0
                 row["malformed"] = emu.malformed
+                follower = devices.arm.follower
+                row["slowest_tick_s"] = follower.max_step_s  # so far in this process
             out.append(row)
             print(
                 f"{variant:>10} {obj:>8} seed {seed}: {res.label} {res.moves} grasps "
@@ -158,8 +178,9 @@ def table(results: dict[str, dict[str, list[dict]]], objects: list[str]) -> str:
     }
     lines = [
         "| arm | runs | correct | same label as the twin | same poses as the twin | "
-        "grasps (mean) | robot s (mean) | wall s (mean) |",
-        "|---|---|---|---|---|---|---|---|",
+        "grasps (mean) | skipped (mean) | moves ended by a contact | robot s (mean) | "
+        "wall s (mean) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for variant, runs in results.items():
         rows = [(obj, i, r) for obj in objects for i, r in enumerate(runs[obj])]
@@ -170,23 +191,38 @@ def table(results: dict[str, dict[str, list[dict]]], objects: list[str]) -> str:
         lines.append(
             f"| {names[variant]} | {n} | {correct}/{n} | {same}/{n} | {poses}/{n} | "
             f"{np.mean([r['grasps'] for *_, r in rows]):.2f} | "
+            f"{np.mean([r['skipped'] for *_, r in rows]):.1f} | "
+            f"{sum(r['blocked'] for *_, r in rows)} | "
             f"{np.mean([r['robot_s'] for *_, r in rows]):.1f} | "
             f"{np.mean([r['wall_s'] for *_, r in rows]):.1f} |"
         )
     lines += [
         "",
-        "| object | seed | twin: label, grasps, robot s, wall s | driver: label, grasps, robot s, "
-        "wall s | same poses |",
+        "| object | seed | twin: label, grasps, skipped, robot s, wall s | driver: label, grasps, "
+        "skipped, robot s, wall s | same poses |",
         "|---|---|---|---|---|",
     ]
     drv = results["driver"]
     for obj in objects:
         for a, b in zip(twin[obj], drv[obj], strict=True):
             lines.append(
-                f"| {obj} | {a['seed']} | {a['label']}, {a['grasps']}, {a['robot_s']:.1f}, "
-                f"{a['wall_s']:.1f} | {b['label']}, {b['grasps']}, {b['robot_s']:.1f}, "
+                f"| {obj} | {a['seed']} | {a['label']}, {a['grasps']}, {a['skipped']}, "
+                f"{a['robot_s']:.1f}, {a['wall_s']:.1f} | {b['label']}, {b['grasps']}, "
+                f"{b['skipped']}, {b['robot_s']:.1f}, "
                 f"{b['wall_s']:.1f} | {'yes' if a['pose_ids'] == b['pose_ids'] else 'no'} |"
             )
+    lines += ["", "Why moves were refused or ended (runs with more than 4, by first 60 chars):", ""]
+    many = False
+    for variant, runs in results.items():
+        for obj in objects:
+            for r in runs[obj]:
+                if len(r["skip_reasons"]) > 4:
+                    many = True
+                    kinds = Counter(x[:60] for x in r["skip_reasons"]).most_common(3)
+                    text = "; ".join(f"{n}x {k!r}" for k, n in kinds)
+                    lines.append(f"- {variant}, {obj}, seed {r['seed']}: {text}")
+    if not many:
+        lines.append("- none")
     return "\n".join(lines)
 
 

@@ -57,6 +57,7 @@ class TwinFollower:
         self.blocked: str | None = None  # the contact that stopped the arm, this command
         self.on_block: Any = None  # callable(reason), called once per command, lock held
         self.steps = 0  # ticks replayed on the twin
+        self.max_step_s = 0.0  # the slowest replay (wall s): it delays the emulator's tick
 
     @contextlib.contextmanager
     def live(self, emulator: BaxterEmulator) -> Iterator[None]:
@@ -95,6 +96,7 @@ class TwinFollower:
         q0 = twin.joint_state().position
         traj = JointTrajectory(twin.joint_names, np.array([0.0, self.dt]), np.stack([q0, q_to]))
         self.steps += 1
+        t0 = time.perf_counter()
         try:
             twin.execute(traj)
         except ActiveTouchError as e:  # a contact, or (never expected) a limit
@@ -102,6 +104,7 @@ class TwinFollower:
                 self.blocked = _TWIN_PREFIX.sub("", str(e))
                 if self.on_block is not None:
                     self.on_block(self.blocked)
+        self.max_step_s = max(self.max_step_s, time.perf_counter() - t0)
         return twin.joint_state().position
 
 
@@ -137,6 +140,10 @@ class TwinEmulatedBaxterArm(BaxterArm):
         t.start()
 
     def execute(self, trajectory: JointTrajectory) -> None:
+        # Take a newly placed object into the twin arm's collision scene here, not in the
+        # emulator's 10 ms control loop: building its hull stalled joint states for > 0.5 s
+        # on a loaded machine (the driver then reports them lost).
+        self.twin.sync_object()
         with self.follower.live(self.emulator):
             try:
                 super().execute(trajectory)
@@ -181,6 +188,7 @@ class TwinEmulatedBaxterArm(BaxterArm):
         twin-baxter type does), and the driver told."""
         ready = self.twin.model.ready
         self.twin.home()
+        self.twin.sync_object()  # the placed object, outside the control loop (see execute)
         self.emulator.teleport(self.cfg.side, ready)
         self.follower.dirty = False  # both at the ready pose
         if self._session is None:

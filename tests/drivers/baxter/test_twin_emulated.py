@@ -55,6 +55,9 @@ class WallTwin:
     def home(self) -> None:
         self.q = READY.copy()
 
+    def sync_object(self) -> None:
+        self.threads.add(f"sync_object in {threading.current_thread().name}")
+
 
 @pytest.fixture
 def emulated() -> Iterator[tuple[TwinEmulatedBaxterArm, WallTwin]]:
@@ -100,7 +103,9 @@ def test_the_twin_follows_the_emulated_joints_only_during_a_motion(emulated) -> 
     # The driver's bytes went through the emulator; the twin was moved by its control loop.
     cmds = arm.emulator.commands("left")
     assert len(cmds) >= 50 and all(c[1] == 1 and c[2] == LEFT for c in cmds)
-    assert twin.threads == {"baxter-emulator"} and twin.executed > 20
+    assert twin.executed > 20
+    # Steps in the emulator's loop; the object's scene beforehand, in the caller's thread.
+    assert twin.threads == {"baxter-emulator", f"sync_object in {threading.current_thread().name}"}
     # After the motion the arm holds, and all three agree on where it is.
     assert arm.emulator.holding("left")
     np.testing.assert_allclose(twin.q, arm.emulator.positions("left"), atol=1e-12)
@@ -240,3 +245,22 @@ def test_a_contact_with_the_placed_object_is_unreachable_not_a_stop(devices) -> 
     assert not np.allclose(stopped, into, atol=1e-2)
     assert arm.twin.collision_reason(stopped) is None
     arm.execute(line(stopped, above, 2.0))  # not latched: back up
+
+
+@pytest.mark.slow
+def test_the_robot_gets_the_workcells_baxter_motion_layer() -> None:
+    """Without emulation the driver's motion layer is a BaxterWristMotion on the workcell's
+    table and object frame (a real robot has no twin to ask)."""
+    pytest.importorskip("pinocchio")
+    from activetouch.devices import DeviceContext
+    from activetouch.drivers.baxter.arm import BaxterArm
+    from activetouch.planning.motion.baxter import BaxterWristMotion
+
+    cfg = load_config(BAXTER_TOML, ["arm.type=baxter", "workcell.object_yaw_deg=30"])
+    assert not cfg.arm.simulated
+    ctx = DeviceContext(cfg)
+    wrist = cfg.arm.make_wrist(BaxterArm(cfg.arm), ctx)  # not connected: nothing moves
+    assert isinstance(wrist, BaxterWristMotion)
+    np.testing.assert_allclose(wrist.placement.xyz, cfg.workcell.object_xyz)
+    assert abs(wrist.placement.yaw_rad - np.radians(30)) < 1e-12
+    assert wrist.model.joint_names == LEFT
