@@ -437,18 +437,28 @@ class SimWorld:
             body=np.asarray(bodies, dtype=np.int64),
         )
 
-    def hand_min_z(self) -> float:
-        """Lowest world z of the hand's collision geometry (its boxes' AABBs are exact)."""
+    def hand_min_z(self, over_table: bool = False) -> float:
+        """Lowest world z of the hand's collision geometry, from the links' axis-aligned boxes
+        (exact for an upright hand, a few mm low for tilted compound links: conservative).
+        `over_table`: only links above the table's footprint (inf if none is)."""
         c = self.cid
-        return min(
-            pb.getAABB(self.hand, j, physicsClientId=c)[0][2] for j in self.links.collision_links
-        )
+        wc = self.workcell
+        cx, cy = float(wc.table_center[0]), float(wc.table_center[1])
+        hx, hy = float(wc.table_size[0]) / 2, float(wc.table_size[1]) / 2
+        low = float("inf")
+        for j in self.links.collision_links:
+            (x0, y0, z0), (x1, y1, _z1) = pb.getAABB(self.hand, j, physicsClientId=c)
+            if over_table and (x1 < cx - hx or x0 > cx + hx or y1 < cy - hy or y0 > cy + hy):
+                continue  # beside the table: nothing to go under
+            low = min(low, z0)
+        return low
 
     def collision_reason(self) -> str | None:
-        """Why the hand cannot be where it is (None if it may): below the table top, or
-        overlapping the table or the object deeper than the configured tolerance."""
+        """Why the hand cannot be where it is (None if it may): below the table top where the
+        table is, or overlapping the table or the object deeper than the configured
+        tolerance."""
         tol = self.cfg.wrist_penetration_tol_m
-        low = self.hand_min_z() - self.workcell.table_top_z
+        low = self.hand_min_z(over_table=True) - self.workcell.table_top_z
         if low < -tol:
             return f"the hand reaches {-low * 1000:.1f} mm below the table top"
         self.flush_contacts()

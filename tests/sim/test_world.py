@@ -275,3 +275,15 @@ def test_library_object_is_placed_by_its_spawner(world: SimWorld, tmp_path) -> N
     with pytest.raises(UnreachableError):
         twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.0], TOP))
     twin_wrist(arm).move_to(Pose([0.0, 0.0, spec.extents[2] / 2 + 0.0896 + 0.01], TOP))
+
+
+def test_beside_the_table_the_hand_may_go_below_its_top() -> None:
+    from activetouch.config import WorkcellConfig
+
+    wc = WorkcellConfig(table_center=[0.0, 0.0, -0.025], table_size=[0.4, 0.4, 0.05])
+    with SimWorld(workcell=wc) as w:
+        arm = SimArm(w)
+        # Palm down, 5 cm below the table top, beside the table (x = 0.5 m): allowed.
+        assert arm.check_pose(Pose([0.5, 0.0, -0.05], TOP)) is None
+        # The same height over the table: below its top.
+        assert "below the table top" in arm.check_pose(Pose([0.0, 0.0, -0.05], TOP))
