@@ -47,5 +47,9 @@ def test_other_threads_run_while_a_search_runs() -> None:
         gaps.append(now - last)
         last = now
     t.join()
-    assert spent[0] > 0.5, "the search was too short to show anything"
-    assert max(gaps) < 0.25, f"the main thread waited {max(gaps):.3f} s behind the search"
+    per_search = spent[0] / 2
+    assert per_search > 0.3, "the search was too short to show anything"
+    # A held interpreter shows as a gap as long as a whole search; a loaded machine's
+    # scheduler alone gives gaps of a few hundred ms at worst.
+    limit = max(0.25, per_search / 2)
+    assert max(gaps) < limit, f"the main thread waited {max(gaps):.3f} s behind the search"
