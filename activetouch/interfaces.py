@@ -103,6 +103,8 @@ class HandState:
     finger_angles: np.ndarray  # (3,) proximal joint angles, rad
     preshape: float
     stamp: float  # seconds, monotonic clock of the producer
+    stale: bool = False  # the hand's stream is lost: these values are old
+    wall_stamp: float = 0.0  # time.time() at `stamp` (0: unknown), for readers elsewhere
 
 
 @dataclass(frozen=True)

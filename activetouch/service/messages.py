@@ -633,13 +633,14 @@ def _wall_stamp(state: HandState) -> float:
 
 
 def hand_state_from_msg(msg: HandStateMsg) -> HandState:
-    # `wall_stamp` and `stale` stay on the message until HandState carries them.
     return HandState(
         pressures=np.array(msg.pressures, dtype=np.float64),
         contact=np.array(msg.contact, dtype=bool),
         finger_angles=np.array(msg.finger_angles, dtype=np.float64),
         preshape=float(msg.preshape),
         stamp=float(msg.stamp),
+        stale=bool(msg.stale),
+        wall_stamp=float(msg.wall_stamp),
     )
 
 

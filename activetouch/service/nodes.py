@@ -88,6 +88,7 @@ TIMEOUT_PARAM = "timeout"
 _STOP = object()  # worker sentinel
 _DONE = object()  # a get finished (all replies in, or timed out)
 _GONE = object()  # the node's liveliness token dropped
+MAX_STREAM_HZ = 100.0  # a streaming hand's state is published at most this often
 _GRACE_S = 0.5  # beyond Zenoh's own timeout, before the client gives up regardless
 
 M = TypeVar("M", bound=Message)
@@ -345,10 +346,26 @@ class HandNode(_ServedNode):
         state_hz: float = 20.0,
         lock: threading.Lock | None = None,
     ) -> None:
+        # A hand that reports each reading as it arrives (the ReFlex drivers: 40 Hz, and once
+        # when its stream goes stale) is published from there, beside a running grasp;
+        # other hands on the node's timer, between commands.
+        streams = callable(getattr(hand, "add_state_listener", None))
         super().__init__(
-            session, robot, state_key=Keys(robot).hand_state, state_hz=state_hz, lock=lock
+            session,
+            robot,
+            state_key=Keys(robot).hand_state,
+            state_hz=0.0 if streams else state_hz,
+            lock=lock,
         )
         self.hand = hand
+        self._stream_pub: Any = None
+        self._min_gap = 1.0 / MAX_STREAM_HZ
+        self._last_put = 0.0
+        if streams:
+            self._stream_pub = session.declare_publisher(
+                self.keys.hand_state, encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+            )
+            hand.add_state_listener(self._on_reading)
         k = self.keys
         self._ops = {
             "open": _Op(k.hand_open, Empty, lambda _r: hand.open()),
@@ -365,6 +382,24 @@ class HandNode(_ServedNode):
 
     def _read_state(self) -> Message:
         return hand_state_to_msg(self.hand.state())
+
+    def _on_reading(self, state: HandState) -> None:
+        # The driver's receive thread: encode and put (non-blocking, drops under congestion).
+        pub = self._stream_pub
+        now = time.monotonic()
+        if pub is None or (now - self._last_put < self._min_gap and not state.stale):
+            return
+        self._last_put = now
+        try:
+            pub.put(encode(hand_state_to_msg(state)))
+            self.published += 1
+        except Exception as e:
+            log.debug("hand node: publishing a reading failed: %s", e)
+
+    def _on_close(self) -> None:
+        pub, self._stream_pub = self._stream_pub, None
+        if pub is not None:
+            undeclare_quietly(pub)
 
 
 class ArmNode(_ServedNode):

@@ -612,3 +612,42 @@ def test_motion_stats_of_a_node_without_a_wrist_are_zero(
     ra.connect()
     arm.robot_seconds = 9.0  # the arm's own attribute; this node has no motion layer
     assert (ra.robot_seconds, ra.planning_seconds) == (0.0, 0.0)
+
+
+class StreamingHand(FakeHand):
+    """A hand that reports readings as they arrive (as the ReFlex drivers do)."""
+
+    def __init__(self) -> None:
+        super().__init__(close_delay=1.0)
+        self.listeners: list = []
+
+    def add_state_listener(self, fn) -> None:
+        self.listeners.append(fn)
+
+    def emit(self, stale: bool = False) -> None:
+        s = self.state()
+        s = HandState(s.pressures, s.contact, s.finger_angles, s.preshape, s.stamp, stale, 123.0)
+        for fn in self.listeners:
+            fn(s)
+
+
+def test_a_streaming_hand_is_published_beside_a_running_grasp(
+    node_session: ZenohSession, client_session: ZenohSession
+) -> None:
+    from activetouch.service.messages import HandStateMsg
+    from activetouch.service.nodes import Latest
+
+    hand = StreamingHand()
+    node_session.closing(HandNode(hand, node_session.session, ROBOT, state_hz=50.0))
+    latest = client_session.closing(
+        Latest(client_session.session, Keys(ROBOT).hand_state, HandStateMsg)
+    )
+    rh = client_session.closing(RemoteHand(client_session.session, ROBOT, timeout=3.0))
+    rh.connect()
+    t = threading.Thread(target=rh.guarded_close)  # holds the node's worker for 1 s
+    t.start()
+    time.sleep(0.2)
+    hand.emit(stale=True)  # a reading during the grasp: published at once
+    msg = latest.wait(2.0)
+    assert msg.stale is True and msg.wall_stamp == 123.0
+    t.join(5.0)
