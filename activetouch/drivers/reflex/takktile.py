@@ -85,6 +85,11 @@ class ReflexTakktileConfig(HandConfig):
     # shared twin world the arm moves in (twin_emulated.py). The driver still speaks UDP and
     # its own codec. Empty: a real hand at the addresses above.
     emulate: str = ""
+    # Name of this hand's calibration records (<data>/calibration/<serial>/...; `activetouch
+    # calibrate tactile|fingers --device <serial>`); loaded at connect, replacing the offsets,
+    # thresholds and zeros above. "": the type's name. Not used when emulating.
+    serial: str = ""
+    load_calibration: bool = True
     emulate_loss: float = 0.0  # emulate = "twin": fraction of state packets the board drops
 
     @property
@@ -139,7 +144,10 @@ class ReflexTakktileConfig(HandConfig):
             from activetouch.drivers.reflex.twin_emulated import make_twin_emulated
 
             return make_twin_emulated(self, ctx)
-        return ReflexTakktileHand(self)
+        hand = ReflexTakktileHand(self)
+        if self.load_calibration:
+            hand.calibration_source = (self.serial or self.type, ctx.data)
+        return hand
 
 
 @dataclass(frozen=True)
@@ -162,6 +170,8 @@ class ReflexTakktileHand(Hand):
     """The `Hand` of a ReFlex TakkTile on its UDP link."""
 
     def __init__(self, cfg: ReflexTakktileConfig) -> None:
+        # (device name, data dir) of the stored calibration to load at connect; None: none.
+        self.calibration_source: tuple[str, object] | None = None
         from activetouch.interfaces import StopLatch
 
         self.cfg = cfg
@@ -237,6 +247,11 @@ class ReflexTakktileHand(Hand):
         except BaseException:
             self.disconnect()
             raise
+        if self.calibration_source is not None:
+            from activetouch.calibration.apply import load_into
+
+            device, data = self.calibration_source
+            load_into(self, device, data)  # logs the file used, or warns with the command
 
     def disconnect(self) -> None:
         self._running = False
