@@ -77,7 +77,7 @@ class ObjectSettings:
     fit_yaw: bool = True
     yaw_starts_deg: list[float] = field(default_factory=lambda: [-60, -30, 0, 30, 60, 180])
     min_touches: int = 5
-    min_xy_singular: float = 0.5  # smallest singular value of the x-y Jacobian (unitless)
+    min_xy_singular: float = 0.5  # smallest singular value over x, y, offset (unitless)
     min_yaw_sensitivity_m: float = 0.01  # |d residual / d yaw| (m/rad) below: yaw not observed
     yaw_gain_m: float = 0.0003  # yaw kept only if it lowers the RMS residual this much
     max_offset_m: float = 0.004  # |contact offset| above this: wrong object or size
@@ -302,21 +302,23 @@ def _fit(
     """Coarse samples from every start (lowest cost kept), then twice the dense samples near
     each touch. Returns (scipy result, dense samples per touch)."""
 
-    def run(points: Sequence[np.ndarray], x0: np.ndarray):
+    def run(points: Sequence[np.ndarray], x0: np.ndarray, loss: str = "soft_l1"):
         def resid(x: np.ndarray) -> np.ndarray:
             d = touch_distances(touches, points, boxes, placement_at(nominal, x)) - x[2]
             return np.concatenate([d, st.prior_weight * x])
 
         return least_squares(
-            resid, x0, loss="soft_l1", f_scale=0.001, x_scale=_X_SCALE[: len(x0)], max_nfev=200
+            resid, x0, loss=loss, f_scale=0.001, x_scale=_X_SCALE[: len(x0)], max_nfev=200
         )
 
     coarse = [shape.coarse] * len(touches)
     sol = min((run(coarse, x) for x in starts), key=lambda r: r.cost)
-    for _ in range(2):
+    for loss in ("soft_l1", "linear"):
+        # Robust first (a stray touch cannot drag the start), then plain least squares: with
+        # soft-L1 a lone touch that sees yaw (the handle) would count as an outlier.
         place = placement_at(nominal, sol.x)
         dense = [_near(shape, t, boxes, place, 0.01) for t in touches]
-        sol = run(dense, sol.x)
+        sol = run(dense, sol.x, loss)
     return sol, dense
 
 
@@ -359,13 +361,14 @@ def solve_object(
     r = touch_distances(touches, dense, boxes, place) - x[2]
     rms = float(np.sqrt(np.mean(r**2)))
     sv = np.linalg.svd(jac, compute_uv=False)
-    sv_xy = np.linalg.svd(jac[:, :2], compute_uv=False)
+    sv_xy = np.linalg.svd(jac[:, :3], compute_uv=False)  # x, y and the common offset
     dyaw = float(np.degrees(x[3]))
     fit = ObjectFit(place, x[:2].copy(), dyaw, yaw_used, float(x[2]), r, rms, rms_xy, sv, yaw_sens)
     problems = []
     if sv_xy.min() < st.min_xy_singular:
         problems.append(
-            f"the touches do not pin x and y (singular value {sv_xy.min():.2f} < "
+            f"the touches do not pin x, y and the contact offset (singular value "
+            f"{sv_xy.min():.2f} < "
             f"{st.min_xy_singular:g}): approach from more sides"
         )
     if rms > st.max_rms_m:

@@ -21,7 +21,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "calibrate",
-        help="calibrate tactile zero, finger zero, hand mount; show stored calibrations",
+        help="calibrate tactile zero, finger zero, hand mount, object placement; show them",
         description="Measure a calibration with the configured hand/arm and store it, or show "
         "the stored ones. docs/calibration.md says what each procedure does.",
     )
@@ -41,6 +41,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="mount, twin only: hang the hand off the flange through this true mount "
         "(mm, deg) to check the procedure",
     )
+    p.add_argument("--object", default=None, help="object: its name in the object library")
+    p.add_argument(
+        "--inject-object",
+        default=None,
+        metavar="DX,DY[,DEG]",
+        help="object, twin only: stand the object this far off the workcell's placement (mm, "
+        "deg about z) while the procedure believes the nominal one",
+    )
+    p.add_argument("--directions", type=int, default=None, help="object: approaches (8)")
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -73,10 +82,7 @@ def run(args: argparse.Namespace) -> int:
     elif args.what == "mount":
         rec = run_mount(cfg, root, device, args, console)
     else:
-        raise ActiveTouchError(
-            "calibrate object: not implemented yet (issue 14); the object frame still comes "
-            "from [workcell] object_xyz / object_yaw_deg"
-        )
+        rec = run_object(cfg, root, args.device, args, console)
     if args.json:
         print(rec.to_json(), end="")
     if not args.dry_run:
@@ -194,6 +200,121 @@ def run_mount(cfg, root, device, args, console):
         f"{q['n_touches']} touches, RMS residual {q['rms_residual_mm']:.3f} mm"
     )
     return rec
+
+
+def _parse_object_error(text: str):
+    from activetouch.sim.twin import PlacementError
+
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (2, 3) or not np.all(np.isfinite(v)):
+        raise ActiveTouchError(f"--inject-object {text!r}: expected DX,DY[,DEG] (mm, deg)")
+    return PlacementError(
+        v[0] / 1000.0, v[1] / 1000.0, float(np.radians(v[2] if len(v) > 2 else 0))
+    )
+
+
+def run_object(cfg, root, device, args, console):
+    from activetouch.calibration import store
+    from activetouch.calibration.object_frame import (
+        DEFAULT_DEVICE,
+        IDENTITY,
+        ObjectSettings,
+        calibrate_object,
+        nominal_placement,
+    )
+    from activetouch.calibration.probing import FloatingFlange
+    from activetouch.devices import make_devices
+    from activetouch.interfaces import Pose
+    from activetouch.sim.objects import ObjectLibrary
+
+    if not args.object:
+        raise ActiveTouchError("calibrate object: name the object with --object NAME")
+    device = device or DEFAULT_DEVICE
+    library = ObjectLibrary.in_data_dir(root)
+    if args.object not in library and args.object in _builtins():
+        library.ensure_builtins([args.object])
+    spec = library.get(args.object)  # DataError names the known ones
+    st = ObjectSettings()
+    if args.directions is not None:
+        st.directions = int(args.directions)
+    nominal = nominal_placement(cfg.workcell, spec.extents)
+    injected = _parse_object_error(args.inject_object) if args.inject_object else None
+    devices = make_devices(cfg, root)
+    try:
+        mount = IDENTITY
+        if devices.simulated:
+            if devices.ctx.place is None:
+                raise ActiveTouchError("calibrate object: this simulated robot places no object")
+            from activetouch.service.messages import SimPlaceRequest
+
+            devices.ctx.place(SimPlaceRequest(object=spec.name, seed=cfg.sim.seed))
+            if injected is not None:
+                _misplace(devices, spec, injected)
+        else:
+            if injected is not None:
+                raise ActiveTouchError("--inject-object is for the twin only")
+            hand_name = device_name(cfg, None)
+            rec_m = store.load(root, "mount", f"{hand_name}-on-{cfg.arm.type}")
+            if rec_m is not None:
+                mount = Pose(rec_m.values["xyz"], rec_m.values["quat_xyzw"])
+        from activetouch.sim.world import geometry_from_config
+
+        rec, fit, _ = calibrate_object(
+            devices.hand,
+            FloatingFlange(devices.arm),
+            spec,
+            nominal,
+            cfg.workcell.table_top_z,
+            device,
+            st,
+            mount=mount,
+            geometry=geometry_from_config(cfg.sim),
+            threshold=float(cfg.sim.contact_threshold),
+        )
+    finally:
+        devices.close()
+    q = rec.quality
+    p = fit.placement
+    yaw = f"{np.degrees(p.yaw_rad):.2f} deg" if fit.yaw_observed else "not seen (kept nominal)"
+    console.print(
+        f"object {spec.name}: x {p.xyz[0] * 1e3:.2f} y {p.xyz[1] * 1e3:.2f} z {p.xyz[2] * 1e3:.2f}"
+        f" mm, yaw {yaw}; correction {np.round(fit.correction_xy * 1e3, 2).tolist()} mm; "
+        f"{q['n_touches']} touches ({len(q['missed_approaches'])} missed), RMS residual "
+        f"{q['rms_residual_mm']:.3f} mm, contact offset {fit.offset_m * 1e3:.2f} mm",
+        highlight=False,
+    )
+    if injected is not None:
+        ex = fit.correction_xy[0] - injected.dx
+        ey = fit.correction_xy[1] - injected.dy
+        console.print(
+            f"  injected ({injected.dx * 1e3:.2f}, {injected.dy * 1e3:.2f}) mm, "
+            f"{np.degrees(injected.yaw_rad):.2f} deg: error ({ex * 1e3:.2f}, {ey * 1e3:.2f}) mm, "
+            f"|{np.hypot(ex, ey) * 1e3:.2f}| mm",
+            highlight=False,
+        )
+    return rec
+
+
+def _builtins() -> tuple[str, ...]:
+    from activetouch.sim.objects import BUILTIN_OBJECTS
+
+    return BUILTIN_OBJECTS
+
+
+def _misplace(devices, spec, err) -> None:
+    """Stand the twin's object off its placement (the object frame stays nominal)."""
+    from activetouch.sim.devices import TWIN
+    from activetouch.sim.twin import place_displaced
+
+    rig = devices.ctx.shared(TWIN, lambda: None)
+    if rig is None or not hasattr(rig, "world"):
+        raise ActiveTouchError(
+            "--inject-object needs the twin (hand.type=twin, arm.type=twin-floating)"
+        )
+    place_displaced(rig.world, spec, err)
 
 
 def _rotvec(quat):
