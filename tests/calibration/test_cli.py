@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from activetouch.service.cli import main
 
@@ -52,6 +53,22 @@ def test_cli_tactile_independent_check(tmp_path, capsys):
     assert "tactile reflex-A1" in capsys.readouterr().out
 
 
-def test_cli_object_not_implemented_is_one_line(tmp_path, capsys):
+def test_cli_object_needs_a_name_in_one_line(tmp_path, capsys):
     assert main(["calibrate", "object", "--data", str(tmp_path)]) == 2
-    assert "not implemented" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "--object NAME" in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_cli_object_on_the_twin_finds_the_injected_displacement(tmp_path, capsys):
+    """`calibrate object --inject-object 21,-17`: the twin stands the mug 21 mm, -17 mm off the
+    workcell's place; the stored record says where it is (within 2 mm; spec 5 mm)."""
+    args = ["calibrate", "object", "--object", "mug", "--inject-object", "21,-17"]
+    assert main([*args, "--data", str(tmp_path), "--json"]) == 0
+    out = capsys.readouterr().out
+    rec, _ = json.JSONDecoder().raw_decode(out[out.index("{") :])
+    assert rec["kind"] == "object" and rec["values"]["object"] == "mug"
+    x, y = rec["values"]["xyz"][:2]
+    assert np.hypot(x - 0.021, y + 0.017) < 0.002, (x, y)
+    assert main(["calibrate", "show", "object", "--data", str(tmp_path)]) == 0
+    assert "object workcell" in capsys.readouterr().out
