@@ -79,6 +79,7 @@ class ObjectSettings:
     min_touches: int = 5
     min_xy_singular: float = 0.5  # smallest singular value over x, y, offset (unitless)
     min_yaw_sensitivity_m: float = 0.01  # |d residual / d yaw| (m/rad) below: yaw not observed
+    xy_start_radius_m: float = 0.02  # the x-y fit also starts this far off along +-x, +-y
     yaw_gain_m: float = 0.0003  # yaw kept only if it lowers the RMS residual this much
     max_offset_m: float = 0.004  # |contact offset| above this: wrong object or size
     max_rms_m: float = 0.0015
@@ -345,7 +346,11 @@ def solve_object(
             f"object: {len(touches)} touches, need at least {st.min_touches}"
         )
     n = len(touches)
-    sol, dense = _fit(touches, shape, boxes, nominal, [np.zeros(3)], st)
+    # Several starts: the distance to the nearest surface point is not convex in x, y (a
+    # handle or spout touched on the wrong side is a local minimum).
+    r0 = st.xy_start_radius_m
+    starts = [np.array([dx, dy, 0.0]) for dx, dy in ((0, 0), (r0, 0), (-r0, 0), (0, r0), (0, -r0))]
+    sol, dense = _fit(touches, shape, boxes, nominal, starts, st)
     rms_xy = float(np.sqrt(np.mean(sol.fun[:n] ** 2)))
     x, jac, yaw_sens, yaw_used = np.append(sol.x, 0.0), sol.jac[:n], 0.0, False
     if st.fit_yaw:
