@@ -1003,6 +1003,10 @@ class DeviceNodes:
             )
             if devices.simulated and devices.ctx.place is not None:
                 self.nodes.append(PlaceNode(devices.ctx.place, session, robot, lock=lock))
+            from activetouch.service.calibration_node import CalibrationNode
+
+            # calibrate/<kind>: the procedures of activetouch.calibration on these devices.
+            self.nodes.append(CalibrationNode(devices, session, robot, lock=lock))
         except Exception:
             self.close()
             raise
