@@ -29,6 +29,7 @@ widen a subscription or a query to other robots.
 | sim/place | queryable (simulated devices only) | SimPlaceRequest -> Reply[SimPlaceResult] |
 | alive/<node> | liveliness token | (none) |
 | requests/<session_id> | liveliness token (the requesting client) | (none) |
+| calibrate/<kind> | queryable (tactile fingers mount object) | CalibrateRequest -> Reply |
 """
 
 from __future__ import annotations
