@@ -104,12 +104,12 @@ def measure_tree_ms(
 
 
 def pure_python_rate(
-    n_poses: int, n_classes: int, seed: int, horizon: int, sims: int, anytime: bool
+    n_poses: int, n_classes: int, seed: int, horizon: int, sims: int, objective: str
 ) -> float:
     """Simulations per second of this search with numba disabled (run in a subprocess)."""
     code = (
         "import sys; from activetouch.planning.bench import _pure_child; "
-        f"print(_pure_child({n_poses}, {n_classes}, {seed}, {horizon}, {sims}, {anytime}))"
+        f"print(_pure_child({n_poses}, {n_classes}, {seed}, {horizon}, {sims}, {objective!r}))"
     )
     env = dict(os.environ, NUMBA_DISABLE_JIT="1")
     out = subprocess.run(
@@ -119,10 +119,10 @@ def pure_python_rate(
 
 
 def _pure_child(
-    n_poses: int, n_classes: int, seed: int, horizon: int, sims: int, anytime: bool
+    n_poses: int, n_classes: int, seed: int, horizon: int, sims: int, objective: str
 ) -> float:
     pr = make_problem(n_poses, n_classes, seed)
-    ts = TreeSearch(pr.model, pr.kernel, anytime=anytime)
+    ts = TreeSearch(pr.model, pr.kernel, objective=objective)
     visited, counts, cells = _root(pr, 0)
     rng = np.random.default_rng(0)
     t0 = time.perf_counter()
@@ -141,8 +141,7 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
         f"{len(m.tally_key)} tally rows, {len(m.marg_key)} marginal rows "
         f"({time.perf_counter() - t0:.1f} s to build)"
     )
-    anytime = args.objective == "anytime"
-    ts = TreeSearch(m, pr.kernel, anytime=anytime)
+    ts = TreeSearch(m, pr.kernel, objective=args.objective)
     rng = np.random.default_rng(args.seed)
     visited, counts, cells = _root(pr, 0)
     t0 = time.perf_counter()
@@ -187,12 +186,14 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
         f"{args.seed}",
     }
     if args.compare:
-        full = TreeSearch(m, pr.kernel, incremental=False, anytime=anytime)
+        full = TreeSearch(m, pr.kernel, incremental=False, objective=args.objective)
         full.search(0, visited, counts, cells, horizon=5, simulations=100, rng=rng)
         rate_full, _ = measure_rate(full, pr, 5, args.sims, args.repeats, rng)
         rate_inc = next(r["sims_per_s"] for r in results if r["horizon"] == 5)
         py_sims = 200
-        rate_py = pure_python_rate(args.poses, args.classes, args.seed, 5, py_sims, anytime)
+        rate_py = pure_python_rate(
+            args.poses, args.classes, args.seed, 5, py_sims, args.objective
+        )
         out["compare_T5"] = {
             "numba_incremental_sims_per_s": rate_inc,
             "numba_full_kernel_proba_sims_per_s": round(rate_full, 1),
@@ -252,7 +253,8 @@ def main(argv: list[str] | None = None) -> int:
         "--objective",
         choices=CHOICES["planner.objective"],
         default="anytime",
-        help="recognition term: anytime (the default planner) or final (the paper's Eq. 1)",
+        help="recognition term: anytime (the default planner), final (the paper's Eq. 1) or "
+        "info_gain",
     )
     p.add_argument(
         "--compare",
