@@ -820,6 +820,7 @@ def load_mesh(path: Path, scale: float = 1.0):
         raise DataError(f"{mesh_path}: cannot read mesh ({type(e).__name__}: {e})") from e
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0 or len(mesh.vertices) < 4:
         raise DataError(f"{mesh_path}: no triangles found (malformed or empty mesh)")
+    _check_not_truncated(mesh_path)  # what a reader kept of a cut file looks whole
     v = np.asarray(mesh.vertices, dtype=np.float64)
     if not np.all(np.isfinite(v)):
         raise DataError(f"{mesh_path}: vertices are not finite numbers")
@@ -830,6 +831,40 @@ def load_mesh(path: Path, scale: float = 1.0):
     if len(mesh.faces) == 0:
         raise DataError(f"{mesh_path}: all triangles are degenerate")
     return mesh
+
+
+def _check_not_truncated(path: Path) -> None:
+    """DataError if the file was cut short (a copy that stopped, a download that broke): mesh
+    readers keep what they could parse and say nothing, which would import half an object."""
+    data = path.read_bytes()
+    suffix = path.suffix.lower()
+    cut = f"{path}: the file is truncated"
+    if suffix == ".stl":
+        if data[:5].lower() == b"solid" and b"facet" in data[:1000]:
+            if b"endsolid" not in data[-1000:].lower():
+                raise DataError(f"{cut} (ASCII STL without 'endsolid')")
+        elif len(data) >= 84:
+            n = int.from_bytes(data[80:84], "little")
+            if len(data) < 84 + 50 * n:
+                have = (len(data) - 84) // 50
+                raise DataError(f"{cut} ({n} triangles announced, {have} present)")
+        else:
+            raise DataError(f"{cut} (shorter than a binary STL header)")
+    elif suffix == ".obj":
+        n_vertices, max_index = 0, 0
+        for line in data.decode("utf-8", errors="replace").splitlines():
+            if line.startswith("v "):
+                n_vertices += 1
+            elif line.startswith("f "):
+                for token in line.split()[1:]:
+                    head = token.split("/")[0]
+                    if head.lstrip("-").isdigit():
+                        max_index = max(max_index, int(head))
+        if max_index > n_vertices:
+            raise DataError(f"{cut} (a face uses vertex {max_index} of {n_vertices})")
+        last = data.rstrip(b"\r\n").rsplit(b"\n", 1)[-1].split()
+        if last[:1] in ([b"v"], [b"f"]) and len(last) < 4:
+            raise DataError(f"{cut} (its last line is incomplete: {b' '.join(last).decode()!r})")
 
 
 def decompose(verts: np.ndarray, faces: np.ndarray, method: str = "coacd") -> list[np.ndarray]:
