@@ -37,7 +37,7 @@ from activetouch.planning.motion.timing import sample, time_path
 
 # A Baxter workcell (base frame): a 0.75 m-high table in front of the robot (Baxter's base
 # frame is ~0.93 m above the floor), the object ahead of the left arm. Measured in
-# benchmarks/motion.py against other placements: see docs/motion.md.
+# python -m activetouch bench motion against other placements: see docs/motion.md.
 BAXTER_TABLE_CENTER = (0.85, 0.2, -0.205)
 BAXTER_TABLE_SIZE = (0.8, 1.4, 0.05)
 BAXTER_OBJECT_XY = (0.6, 0.25)

@@ -14,6 +14,7 @@ BENCHES: dict[str, str] = {
     "sim": "activetouch.sim.bench",
     "train": "activetouch.service.training_bench",
     "service": "activetouch.service.bench",
+    "motion": "activetouch.service.motion_bench",
 }
 
 
