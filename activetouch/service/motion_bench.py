@@ -1,7 +1,7 @@
 """Baxter motion benchmark: IK success and time, collision check time, ruckig time, training-grid
 reachability at the default placement, planning time and robot seconds per grasp-to-grasp move.
 
-    .venv/bin/python benchmarks/motion.py [--targets 1000] [--moves 100] [--json FILE]
+    .venv/bin/python -m activetouch bench motion [--targets 1000] [--moves 100] [--json FILE]
 
 IK targets are the hand poses of random collision-free configurations (reachable by
 construction); the grid is the shared training grid of the paper's 7 objects, each object at
@@ -66,13 +66,13 @@ def object_specs(names: tuple[str, ...]) -> dict[str, tuple[np.ndarray, np.ndarr
     return out
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--targets", type=int, default=1000)
     ap.add_argument("--moves", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=str, default="")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     import pinocchio as pin
 
     rng = np.random.default_rng(args.seed)
@@ -182,6 +182,7 @@ def main() -> None:
     print(json.dumps(out, indent=2))
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=2))
+    return 0
 
 
 def _pose(p: np.ndarray):
@@ -200,4 +201,4 @@ def _collides(scene: CollisionScene, plan) -> bool:
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
