@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from activetouch.devices import ArmConfig, DeviceContext, HandConfig
-from activetouch.errors import ActiveTouchError, ConfigError, DataError, UnreachableError
+from activetouch.errors import ConfigError, DataError, UnreachableError
 from activetouch.interfaces import (
     N_FINGERS,
     N_SENSORS,
@@ -40,6 +40,7 @@ from activetouch.planning.motion.floating import (
     WRIST_JOINTS,
     floating_limits,
     wrist_joints_to_pose,
+    wrist_trajectory_positions,
 )
 
 if TYPE_CHECKING:
@@ -115,14 +116,8 @@ class FakeArm(Arm):
 
     def execute(self, trajectory: JointTrajectory) -> None:
         self.stop_latch.check("arm motion")
-        names = tuple(trajectory.names)
-        if sorted(names) != sorted(WRIST_JOINTS) or len(names) != len(WRIST_JOINTS):
-            raise ActiveTouchError(f"the fake arm has joints {WRIST_JOINTS}, got {names}")
-        q = np.asarray(trajectory.positions, dtype=np.float64)
+        q = wrist_trajectory_positions(trajectory)
         times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
-        if q.shape != (len(times), 6) or len(times) == 0 or not np.all(np.isfinite(q)):
-            raise ActiveTouchError(f"bad trajectory of shape {q.shape} for {len(times)} times")
-        q = q[:, [names.index(n) for n in WRIST_JOINTS]]
         bad = self._limits.violations(WRIST_JOINTS, q)
         if bad:
             raise UnreachableError(f"trajectory outside the joint limits: {'; '.join(bad)}")

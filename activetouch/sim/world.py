@@ -50,6 +50,7 @@ from activetouch.planning.motion.floating import (
     pose_to_wrist_joints,
     wrap_angles,
     wrist_joints_to_pose,
+    wrist_trajectory_positions,
 )
 from activetouch.sim.devices import PATHS
 from activetouch.sim.pybullet import pb
@@ -546,7 +547,7 @@ class SimArm(Arm):
         """Follow a wrist trajectory (see the class); on a collision the hand stays at the last
         collision-free pose and UnreachableError names the time."""
         self.stop_latch.check("arm motion")
-        q = _trajectory_in_wrist_order(trajectory)
+        q = wrist_trajectory_positions(trajectory)
         bad = self._limits.violations(WRIST_JOINTS, q)
         if bad:
             raise UnreachableError(f"wrist trajectory outside the workspace: {'; '.join(bad)}")
@@ -587,25 +588,6 @@ class SimArm(Arm):
         self.stop_latch.clear()
 
 
-def _trajectory_in_wrist_order(trajectory: JointTrajectory) -> np.ndarray:
-    names = tuple(trajectory.names)
-    if sorted(names) != sorted(WRIST_JOINTS) or len(names) != len(WRIST_JOINTS):
-        raise ActiveTouchError(
-            f"a wrist trajectory needs the joints {', '.join(WRIST_JOINTS)}; got {names}"
-        )
-    pos = np.asarray(trajectory.positions, dtype=np.float64)
-    times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
-    if pos.ndim != 2 or pos.shape != (len(times), len(names)) or len(times) == 0:
-        raise ActiveTouchError(
-            f"trajectory positions of shape {pos.shape} do not match {len(times)} times "
-            f"x {len(names)} joints"
-        )
-    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(times)):
-        raise ActiveTouchError("trajectory holds NaN or infinite values")
-    if np.any(np.diff(times) < 0):
-        raise ActiveTouchError("trajectory times go backwards")
-    order = [names.index(n) for n in WRIST_JOINTS]
-    return pos[:, order]
 
 
 __all__: list[Any] = [
