@@ -284,3 +284,77 @@ class Arm(abc.ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.disconnect()
+
+
+class HandWrapper(Hand):
+    """A `Hand` that forwards everything to `inner`: subclass it and override only what a
+    wrapper changes (pacing, an interlock, a fault)."""
+
+    def __init__(self, inner: Hand) -> None:
+        self.inner = inner
+
+    def connect(self) -> None:
+        self.inner.connect()
+
+    def disconnect(self) -> None:
+        self.inner.disconnect()
+
+    def open(self) -> None:
+        self.inner.open()
+
+    def preshape(self, angle: float) -> None:
+        self.inner.preshape(angle)
+
+    def guarded_close(self) -> Grasp:
+        return self.inner.guarded_close()
+
+    def state(self) -> HandState:
+        return self.inner.state()
+
+    def stop(self) -> None:
+        self.inner.stop()
+
+    def clear_stop(self) -> None:
+        self.inner.clear_stop()
+
+
+class ArmWrapper(Arm):
+    """An `Arm` that forwards everything to `inner` (as `HandWrapper`)."""
+
+    def __init__(self, inner: Arm) -> None:
+        self.inner = inner
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.inner.joint_names
+
+    @property
+    def limits(self) -> JointLimits:
+        return self.inner.limits
+
+    def connect(self) -> None:
+        self.inner.connect()
+
+    def disconnect(self) -> None:
+        self.inner.disconnect()
+
+    def joint_state(self) -> JointState:
+        return self.inner.joint_state()
+
+    def execute(self, trajectory: JointTrajectory) -> None:
+        self.inner.execute(trajectory)
+
+    def stop(self) -> None:
+        self.inner.stop()
+
+    def clear_stop(self) -> None:
+        self.inner.clear_stop()
+
+    def estop(self) -> None:
+        self.inner.estop()
+
+    def enable(self) -> None:
+        self.inner.enable()
+
+    def disable(self) -> None:
+        self.inner.disable()

@@ -6,31 +6,17 @@ from __future__ import annotations
 import numpy as np
 
 from activetouch.calibration.mount import compose, inverse
-from activetouch.interfaces import Arm, JointLimits, JointState, JointTrajectory, Pose
+from activetouch.interfaces import Arm, ArmWrapper, JointState, JointTrajectory, Pose
 
 
-class MountedArm(Arm):
+class MountedArm(ArmWrapper):
     """Wraps a floating-wrist arm (the twin's: its joints are the hand pose) so that its joints
     are the flange pose and the hand hangs off the flange through `true_mount`."""
 
     def __init__(self, inner: Arm, true_mount: Pose) -> None:
-        self.inner = inner
+        super().__init__(inner)
         self.true_mount = true_mount
         self._inv = inverse(true_mount)
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.inner.joint_names
-
-    @property
-    def limits(self) -> JointLimits:
-        return self.inner.limits
-
-    def connect(self) -> None:
-        self.inner.connect()
-
-    def disconnect(self) -> None:
-        self.inner.disconnect()
 
     def joint_state(self) -> JointState:
         from activetouch.planning.motion.floating import pose_to_wrist_joints, wrist_joints_to_pose
@@ -44,17 +30,11 @@ class MountedArm(Arm):
             WRIST_JOINTS,
             pose_to_wrist_joints,
             wrist_joints_to_pose,
+            wrist_trajectory_positions,
         )
 
-        order = [list(trajectory.names).index(n) for n in WRIST_JOINTS]
-        q = np.asarray(trajectory.positions, dtype=np.float64)[:, order]
+        q = wrist_trajectory_positions(trajectory)
         hand_q = np.stack(
             [pose_to_wrist_joints(compose(wrist_joints_to_pose(row), self.true_mount)) for row in q]
         )
         self.inner.execute(JointTrajectory(WRIST_JOINTS, trajectory.times, hand_q))
-
-    def stop(self) -> None:
-        self.inner.stop()
-
-    def clear_stop(self) -> None:
-        self.inner.clear_stop()

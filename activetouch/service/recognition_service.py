@@ -52,7 +52,7 @@ from activetouch.errors import (
     MessageError,
     NodeUnavailableError,
 )
-from activetouch.interfaces import Grasp, Hand, HandState, Pose
+from activetouch.interfaces import Grasp, Hand, HandWrapper, Pose
 from activetouch.planning.motion.base import WristMotion, workcell_placement
 from activetouch.planning.policies import Plan, PlanningState, Policy, make_policy
 from activetouch.service.client import BusyError, RecognitionAbortedError
@@ -110,9 +110,13 @@ class _Interlock:
             raise RecognitionAbortedError(f"{what} refused: {self.reason}")
 
 
-class _GuardedHand(Hand):
+class _GuardedHand(HandWrapper):
+    """The hand as one recognition uses it: motions refused once its interlock trips. It
+    neither connects nor disconnects the hand (the service does not own it)."""
+
     def __init__(self, hand: Hand, interlock: _Interlock) -> None:
-        self.inner, self.interlock = hand, interlock
+        super().__init__(hand)
+        self.interlock = interlock
 
     def connect(self) -> None:
         pass
@@ -131,15 +135,6 @@ class _GuardedHand(Hand):
     def guarded_close(self) -> Grasp:
         self.interlock.check("grasp")
         return self.inner.guarded_close()
-
-    def state(self) -> HandState:
-        return self.inner.state()
-
-    def stop(self) -> None:
-        self.inner.stop()
-
-    def clear_stop(self) -> None:
-        self.inner.clear_stop()
 
 
 class _GuardedWrist(WristMotion):

@@ -21,11 +21,10 @@ from activetouch.devices import ArmConfig, DeviceContext, HandConfig
 from activetouch.errors import ConfigError
 from activetouch.interfaces import (
     Arm,
+    ArmWrapper,
     Grasp,
     Hand,
-    HandState,
-    JointLimits,
-    JointState,
+    HandWrapper,
     JointTrajectory,
     Pose,
     StopLatch,
@@ -141,24 +140,13 @@ def twin_rig(ctx: DeviceContext) -> TwinRig:
     return ctx.shared(TWIN, make)
 
 
-class PacedHand(Hand):
+class PacedHand(HandWrapper):
     """A simulated hand taking `delay` s per grasp like a real one (0: flat out); a stop cuts
     the wait short."""
 
     def __init__(self, hand: Hand, delay: float) -> None:
-        self.inner, self.delay = hand, float(delay)
-
-    def connect(self) -> None:
-        self.inner.connect()
-
-    def disconnect(self) -> None:
-        self.inner.disconnect()
-
-    def open(self) -> None:
-        self.inner.open()
-
-    def preshape(self, angle: float) -> None:
-        self.inner.preshape(angle)
+        super().__init__(hand)
+        self.delay = float(delay)
 
     def guarded_close(self) -> Grasp:
         latch: StopLatch | None = getattr(self.inner, "stop_latch", None)
@@ -169,40 +157,15 @@ class PacedHand(Hand):
                 time.sleep(self.delay)
         return self.inner.guarded_close()
 
-    def state(self) -> HandState:
-        return self.inner.state()
 
-    def stop(self) -> None:
-        self.inner.stop()
-
-    def clear_stop(self) -> None:
-        self.inner.clear_stop()
-
-
-class PacedArm(Arm):
+class PacedArm(ArmWrapper):
     """A simulated arm taking `delay` s per motion; a stop cuts the motion short (it raises,
     as a real arm stopped short of its target would not be where it was sent)."""
 
     def __init__(self, arm: Arm, delay: float) -> None:
-        self.inner, self.delay = arm, float(delay)
+        super().__init__(arm)
+        self.delay = float(delay)
         self._stopped = threading.Event()
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.inner.joint_names
-
-    @property
-    def limits(self) -> JointLimits:
-        return self.inner.limits
-
-    def connect(self) -> None:
-        self.inner.connect()
-
-    def disconnect(self) -> None:
-        self.inner.disconnect()
-
-    def joint_state(self) -> JointState:
-        return self.inner.joint_state()
 
     def execute(self, trajectory: JointTrajectory) -> None:
         if self.delay > 0 and self._stopped.wait(self.delay):
@@ -212,6 +175,10 @@ class PacedArm(Arm):
     def stop(self) -> None:
         self._stopped.set()
         self.inner.stop()
+
+    def estop(self) -> None:
+        self._stopped.set()  # cut the paced wait short, as stop does
+        self.inner.estop()
 
     def clear_stop(self) -> None:
         self._stopped.clear()
