@@ -93,6 +93,18 @@ def _keys(robot: str) -> list[str]:
     ]
 
 
+def largest_request(seed: int) -> RecognizeRequest:
+    """The largest plan a request may ask for: its planning bounds at their maxima."""
+    return RecognizeRequest(
+        policy="tree",
+        max_moves=50,
+        seed=seed,
+        object="cup",
+        simulations=MAX_SIMULATIONS,
+        horizon=MAX_HORIZON,
+    )
+
+
 def _ask(session: zenoh.Session, key: str, payload: bytes, timeout: float = 10.0) -> list:
     replies = session.get(key, payload=payload, timeout=timeout)
     return list(replies)
@@ -132,14 +144,7 @@ def test_estop_is_answered_and_in_force_within_100_ms_during_the_largest_plan(
 ) -> None:
     daemon, ep = start_fake_daemon(["session.stable_grasps=1000"])
     hand, arm = daemon.devices.hand, daemon.devices.arm
-    req = RecognizeRequest(
-        policy="tree",
-        max_moves=50,
-        seed=3,
-        object="cup",
-        simulations=MAX_SIMULATIONS,
-        horizon=MAX_HORIZON,
-    )
+    req = largest_request(3)
     with open_client([ep], FAKE_ROBOT, timeout=10.0) as client:
         out: dict = {}
         t = threading.Thread(target=lambda: out.setdefault("r", _try(client, req)))
@@ -251,14 +256,7 @@ def test_sigterm_exits_within_5_s_during_the_largest_plan(trained_home, tmp_path
     )
     try:
         with open_client([ep], FAKE_ROBOT, timeout=10.0, wait=90.0) as client:
-            req = RecognizeRequest(
-                policy="tree",
-                max_moves=50,
-                seed=3,
-                object="cup",
-                simulations=MAX_SIMULATIONS,
-                horizon=MAX_HORIZON,
-            )
+            req = largest_request(3)
             seen = threading.Event()
             t = threading.Thread(target=lambda: _try_progress(client, req, seen), daemon=True)
             t.start()
@@ -284,14 +282,7 @@ def test_cancel_ends_the_largest_plan_at_once_and_plans_keep_their_budget(
 ) -> None:
     daemon, ep = start_fake_daemon(["session.stable_grasps=1000", "service.max_plan_s=0.5"])
     hand = daemon.devices.hand
-    req = RecognizeRequest(
-        policy="tree",
-        max_moves=50,
-        seed=4,
-        object="cup",
-        simulations=MAX_SIMULATIONS,
-        horizon=MAX_HORIZON,
-    )
+    req = largest_request(4)
     progress: list = []
     with open_client([ep], FAKE_ROBOT, timeout=10.0) as client:
         out: dict = {}
