@@ -8,6 +8,7 @@ Defaults are the papers' values (Zhang et al. IROS 2016/2017) unless stated.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import os
 import tomllib
@@ -18,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from activetouch.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -70,6 +73,10 @@ class PlannerConfig:
     # Weight of the movement cost against misclassification (Eq. 1). The paper's 0.5 lets the
     # movement term rank the poses (greedy then always takes the nearest); 0 counts grasps.
     lam: float = 0.0
+    # What c_m measures: "pose" (the paper: translation and rotation between the poses) or
+    # "travel_time" (with an arm that estimates it, e.g. Baxter: the move's duration before
+    # planning, over the longest move; docs/motion.md). Only matters with lam > 0.
+    movement_cost: str = "pose"
     # Execute only the first pose of the path, then search again from the real grasp.
     replan_every_grasp: bool = True
     # Eq. 4 when some classes have no data for (action, cell): "renormalise" draws y among the
@@ -138,6 +145,16 @@ class SimConfig:
     stall_depth_m: float = 0.003  # a link pushed this deep without a sensed contact is blocked
     skin_depth_m: float = 0.0015  # after a sensed contact: deepest press into the skin
     preshape_limit_rad: float = 1.6
+    # The hand's robot time (the twin closes in milliseconds of wall time): a guarded close
+    # takes one spool step per control period (the TakkTile driver steps at its 40 Hz packet
+    # rate), opening and preshaping run at the servos' speed (MX-28 no load: ~5.8 rad/s).
+    hand_period_s: float = 0.025
+    finger_speed_rad_s: float = 5.0
+    # What a grasp reports: "tactile" (the TakkTile's sensors over threshold) or "stall" (the
+    # ReFlex SF, which has none: one contact per finger that stopped against the object, at its
+    # distal sensor site `stall_contact_site`, as drivers/reflex/sf.py reports it).
+    sensing: str = "tactile"
+    stall_contact_site: int = 6
     # Distal sensor sites (link frame); the visualiser URDF's by default. tactile_triangles'
     # Gazebo model: x = [0.0135, 0.0215, 0.0295, 0.0375], z = 0.009 each.
     distal_sensor_x: list[float] = field(default_factory=lambda: [0.0114, 0.0193, 0.0272, 0.0375])
@@ -370,13 +387,23 @@ def load_config(
         _apply(cfg, nested, "", devices)
     set_devices(cfg, devices)
     _check_choices(cfg)
+    default_workcell(cfg)
     cfg.workcell.check()
     return cfg
 
 
-def set_devices(
-    cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVICE_SECTIONS
-) -> None:
+def default_workcell(cfg: Config) -> None:
+    """An arm type that cannot work in the default workcell (a table at the base frame's origin,
+    e.g. inside Baxter) gets its own when the configuration did not set one."""
+    if cfg.workcell != WorkcellConfig():
+        return
+    values = cfg.arm.default_workcell()
+    if values:
+        cfg.workcell = WorkcellConfig(**values)
+        log.info("arm.type=%s: using its default [workcell] %s", cfg.arm.type, values)
+
+
+def set_devices(cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVICE_SECTIONS) -> None:
     """Make the typed `cfg.hand` / `cfg.arm` from raw sections (``{"type": ..., ...}``)."""
     from activetouch.devices import device_config
 
@@ -392,7 +419,9 @@ CHOICES: dict[str, tuple[str, ...]] = {
     "planner.policy": ("tree", "greedy", "random"),
     "planner.eq4_sampling": ("renormalise", "per_class"),
     "planner.objective": ("final", "anytime", "info_gain"),
+    "planner.movement_cost": ("pose", "travel_time"),
     "grid.layout": ("shared", "per_object"),
+    "sim.sensing": ("tactile", "stall"),
 }
 
 

@@ -72,6 +72,12 @@ class ArmConfig(DeviceConfig):
     def make(self, ctx: DeviceContext) -> Arm:
         raise NotImplementedError
 
+    def default_workcell(self) -> dict[str, Any] | None:
+        """`[workcell]` values this arm type uses when the configuration leaves the workcell at
+        its defaults (a table at the base frame's origin, which only a floating wrist reaches);
+        None: the defaults suit it."""
+        return None
+
     def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:
         """The motion layer that brings this arm's hand to object-frame wrist poses. By
         default a floating wrist's (its joints are the hand pose); arm types with real

@@ -191,6 +191,13 @@ class StopLatch:
 class Hand(abc.ABC):
     """A tactile hand that can do guarded enclosure grasps."""
 
+    @property
+    def robot_seconds(self) -> float | None:
+        """Seconds the hand's commands so far took in robot time, for a simulated hand whose
+        wall time is not the robot's (the twin closes in milliseconds); None: a real hand,
+        whose commands take as long as they take."""
+        return None
+
     @abc.abstractmethod
     def connect(self) -> None: ...
 
@@ -316,6 +323,10 @@ class HandWrapper(Hand):
 
     def clear_stop(self) -> None:
         self.inner.clear_stop()
+
+    @property
+    def robot_seconds(self) -> float | None:
+        return self.inner.robot_seconds
 
 
 class ArmWrapper(Arm):

@@ -38,8 +38,10 @@ def models_dir(root: Path) -> Path:
     return root / "models"
 
 
-def default_dataset(root: Path) -> Path:
-    return datasets_dir(root) / DEFAULT_DATASET
+def default_dataset(root: Path, variant: str = "") -> Path:
+    """`variant`: what makes the grasps differ from the floating twin's (an arm that reaches
+    fewer poses, another sensing), so each collects into its own dataset."""
+    return datasets_dir(root) / (f"{DEFAULT_DATASET}-{variant}" if variant else DEFAULT_DATASET)
 
 
 def default_model(root: Path) -> Path:

@@ -1,3 +1,5 @@
+from pathlib import Path
+
 import pytest
 
 from activetouch.config import load_config
@@ -62,3 +64,22 @@ def test_file_errors_name_the_file(tmp_path):
         load_config(f)
     with pytest.raises(ConfigError, match="cannot read the config file"):
         load_config(tmp_path)  # a directory
+
+
+def test_an_arm_that_cannot_use_the_default_workcell_gets_its_own() -> None:
+    # The default table stands at the base frame's origin, inside Baxter: `--set
+    # arm.type=twin-baxter` alone takes Baxter's (deploy/baxter-twin.toml's) instead.
+    from activetouch.config import WorkcellConfig
+
+    floating = load_config(None, [])
+    assert floating.workcell == WorkcellConfig()
+    baxter = load_config(None, ["arm.type=twin-baxter"])
+    assert baxter.workcell.table_center == [0.85, 0.2, -0.205]
+    assert baxter.workcell.object_xyz[:2] == [0.6, 0.25]
+    assert baxter.workcell.table_top_z == pytest.approx(-0.18)
+    toml = load_config(Path(__file__).parents[1] / "deploy" / "baxter-twin.toml", [])
+    assert toml.workcell == baxter.workcell
+    # A workcell the user set is kept, even one that will be refused later.
+    mine = load_config(None, ["arm.type=twin-baxter", "workcell.object_xyz=[0.7, 0.1, -0.1]"])
+    assert mine.workcell.object_xyz == [0.7, 0.1, -0.1]
+    assert mine.workcell.table_center == WorkcellConfig().table_center

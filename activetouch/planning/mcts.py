@@ -916,6 +916,13 @@ class TreeSearch:
         # Set by `interrupt()` from any thread; read by the compiled loop between simulations.
         self._stop = np.zeros(1, dtype=np.int64)
 
+    def set_edge_cost(self, cost: np.ndarray) -> None:
+        """Replace the model's edge costs c_m (E,) for this search's later trees."""
+        c = np.ascontiguousarray(cost, dtype=np.float64).reshape(-1)
+        if c.shape != self._m[3].shape:
+            raise ValueError(f"edge costs must be {self._m[3].shape}, got {c.shape}")
+        self._m = (*self._m[:3], c, *self._m[4:])
+
     def interrupt(self) -> None:
         """End the running search (and any later one) after its current simulation; it returns
         the best path of what it has, or raises `PlanningInterruptedError` if it has none yet."""

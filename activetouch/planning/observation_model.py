@@ -337,6 +337,23 @@ def rotation_angle(quat: np.ndarray) -> np.ndarray:
     return 2.0 * np.arccos(np.clip(w, 0.0, 1.0))
 
 
+def travel_edge_cost(model: ObservationModel, seconds: np.ndarray) -> np.ndarray:
+    """(E,) c_m of the model's edges from a (P, P) matrix of move durations between its poses
+    (seconds, NaN: a move that cannot be made): each edge's duration over the longest finite
+    one, so c_m stays in [0, 1] as in Eq. 1; an impossible move costs 1."""
+    t = np.asarray(seconds, dtype=np.float64)
+    if t.shape != (model.n_poses, model.n_poses):
+        raise ValueError(f"travel times must be ({model.n_poses}, {model.n_poses}), got {t.shape}")
+    src = np.repeat(np.arange(model.n_poses), np.diff(model.edge_ptr))
+    edge_t = t[src, model.edge_target]
+    finite = np.isfinite(edge_t)
+    longest = float(edge_t[finite].max()) if finite.any() else 0.0
+    cost = np.ones(len(edge_t))
+    if longest > 0:
+        cost[finite] = edge_t[finite] / longest
+    return cost
+
+
 def movement_cost(delta: np.ndarray, max_translation: float, clip: bool = True) -> np.ndarray:
     """c_m(a) in [0, 1]: 0.5 * |t| / max_translation + 0.5 * angle / pi for deltas (A, 7).
 

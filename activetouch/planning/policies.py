@@ -96,6 +96,14 @@ class Policy:
     def clear_interrupt(self) -> None:
         """Let later plans run to their end again."""
 
+    # What c_m in Eq. 1 measures: "pose" (the model's own pose-difference cost, the paper's)
+    # or "travel_time" (the arm's move durations, given with `set_edge_cost` by the session).
+    movement_cost: str = "pose"
+
+    def set_edge_cost(self, cost: np.ndarray) -> None:
+        """Use `cost` (E,) as the model edges' c_m from now on (a policy without a movement
+        term ignores it)."""
+
 
 class TreePolicy(Policy):
     """MCTS with horizon `horizon` and `simulations` simulations per tree."""
@@ -142,6 +150,9 @@ class TreePolicy(Policy):
 
     def interrupt(self) -> None:
         self.search.interrupt()
+
+    def set_edge_cost(self, cost: np.ndarray) -> None:
+        self.search.set_edge_cost(cost)
 
     def clear_interrupt(self) -> None:
         self.search.clear_interrupt()
@@ -212,6 +223,14 @@ def make_policy(
     name: str, cfg: PlannerConfig, model: ObservationModel, kernel: ClassifierKernel
 ) -> Policy:
     """A policy by its configuration name (tree | greedy | random), parameters from `cfg`."""
+    policy = _make(name, cfg, model, kernel)
+    policy.movement_cost = cfg.movement_cost
+    return policy
+
+
+def _make(
+    name: str, cfg: PlannerConfig, model: ObservationModel, kernel: ClassifierKernel
+) -> Policy:
     if name == "random":
         return RandomPolicy(model)
     kw = {

@@ -255,7 +255,8 @@ def session_result(msg: RecognizeResult) -> RecognitionResult:
         labels=list(msg.labels),
         pose_ids=list(msg.pose_ids),
         skipped=msg.skipped,
-        planning_s=msg.planning_s,
+        # A daemon from before search_s sent the search alone as planning_s.
+        search_s=msg.search_s if msg.search_s or msg.total_s else msg.planning_s,
         elapsed_s=msg.elapsed_s,
         stop_reason=msg.stop_reason,
         motion_s=msg.motion_s,

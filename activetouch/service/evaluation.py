@@ -103,6 +103,13 @@ def first_correct(labels: list[str], truth: str) -> int | None:
     return None
 
 
+def robot_s_at(robot_s: list[float], move: int | None) -> float | None:
+    """Robot seconds after grasp `move` (1-based); None for None or a run without times."""
+    if move is None or move > len(robot_s):
+        return None
+    return float(robot_s[move - 1])
+
+
 def first_stable_correct(labels: list[str], truth: str, run: int = STABLE_RUN) -> int | None:
     """Moves until the label has been correct `run` grasps in a row (counted at the last)."""
     streak = 0
@@ -187,7 +194,17 @@ def run_job(job: Job) -> dict[str, Any]:
         "skipped": res.skipped,
         "stop_reason": res.stop_reason,
         "planning_s": res.planning_s,
+        "search_s": res.search_s,
         "elapsed_s": res.elapsed_s,
+        # Robot time (session.py): moving, grasping, planning, their total, and the total
+        # when the label was first right (None: never).
+        "motion_s": res.motion_s,
+        "grasp_s": res.grasp_s,
+        "total_s": res.total_s,
+        "robot_s_to_first_correct": robot_s_at(
+            res.robot_s, first_correct(res.labels, job.object_name)
+        ),
+        "unreachable": res.unreachable,
         "distance_to_true": distances,
         "pose_ids": res.pose_ids,
         "mean_contacts": float(np.mean([len(c) for c in res.contacts])) if res.contacts else 0.0,
@@ -341,6 +358,11 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
                 np.mean([max_moves + 1 if x is None else x for x in fc])
             ),
             "mean_planning_s": float(np.mean([r["planning_s"] for r in rs])),
+            # Robot seconds to first correct, 'never' counted as the run's whole robot time
+            # (a lower bound of what it would have taken), over the runs' never count.
+            "mean_robot_s_to_first_correct": _mean_robot_s(rs),
+            "mean_robot_s": float(np.mean([r.get("total_s", 0.0) for r in rs])),
+            "never_correct": sum(x is None for x in fc),
             "mean_contacts": float(np.mean([r.get("mean_contacts", 0.0) for r in rs])),
         }
     paired: dict[str, Any] = {}
@@ -349,7 +371,7 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
         for other in policies:
             if other == "tree":
                 continue
-            diffs = []
+            diffs, sdiffs = [], []
             for r in runs:
                 if r["policy"] != "tree":
                     continue
@@ -357,6 +379,7 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
                 a = r["moves_to_first_correct"] or max_moves + 1
                 b = o["moves_to_first_correct"] or max_moves + 1
                 diffs.append(b - a)
+                sdiffs.append(_robot_s_capped(o) - _robot_s_capped(r))
             d = np.asarray(diffs, dtype=float)
             # Fixed bootstrap seed: the same runs always give the same interval.
             st = paired_stats(d, np.random.default_rng(0))
@@ -368,6 +391,16 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
                 "tree_more": st["losses"],
                 "sign_p": st["sign_p"],
             }
+            if any(r.get("total_s") for r in runs):  # runs that kept robot time
+                sd = np.asarray(sdiffs, dtype=float)
+                ss = paired_stats(sd, np.random.default_rng(0))
+                paired[f"tree_vs_{other}"]["robot_s_saved"] = {
+                    "mean": ss["mean"] if sd.size else None,
+                    "ci95": list(ss["ci95"]) if sd.size else None,
+                    "tree_faster": ss["wins"],
+                    "tree_slower": ss["losses"],
+                    "sign_p": ss["sign_p"],
+                }
     return {
         "objects": objects,
         "policies": policies,
@@ -376,6 +409,16 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
         "per_policy": per_policy,
         "paired_by_seed": paired,
     }
+
+
+def _robot_s_capped(run: dict[str, Any]) -> float:
+    """Robot seconds to first correct; a run never correct counts its whole robot time."""
+    t = run.get("robot_s_to_first_correct")
+    return float(run.get("total_s", 0.0) if t is None else t)
+
+
+def _mean_robot_s(runs: list[dict[str, Any]]) -> float:
+    return float(np.mean([_robot_s_capped(r) for r in runs])) if runs else float("nan")
 
 
 def public_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:

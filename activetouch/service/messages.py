@@ -317,7 +317,7 @@ class RecognizeResult(Message, kw_only=True):
     labels: list[Label]  # top label after each grasp (index 0: the initial grasp)
     moves: NonNegInt  # grasps made, the initial one included (= len(labels))
     skipped: NonNegInt = 0  # planned poses that could not be reached
-    planning_s: NonNegFloat = 0.0  # total planning time
+    planning_s: NonNegFloat = 0.0  # planning: the search plus the arm's motion planning
     elapsed_s: NonNegFloat = 0.0  # request to result
     policy: Policy = "tree"
     seed: Seed | None = None
@@ -327,7 +327,9 @@ class RecognizeResult(Message, kw_only=True):
     # Robot time (added later: optional, so results of older daemons still decode).
     motion_s: NonNegFloat = 0.0  # the arm moving: sum of executed trajectory durations
     motion_planning_s: NonNegFloat = 0.0  # the arm's motion planning (wall seconds)
-    grasp_s: NonNegFloat = 0.0  # the hand's open / preshape / guarded close (wall seconds)
+    grasp_s: NonNegFloat = 0.0  # the hand's open / preshape / guarded close
+    search_s: NonNegFloat = 0.0  # the policy's search alone (part of planning_s)
+    total_s: NonNegFloat = 0.0  # robot time: motion_s + grasp_s + planning_s
 
 
 class MotionStats(Message, kw_only=True):

@@ -909,7 +909,7 @@ class RecognitionService:
             labels=list(res.labels),
             moves=len(res.labels),
             skipped=res.skipped,
-            planning_s=res.planning_s,
+            planning_s=max(0.0, res.planning_s),
             elapsed_s=time.monotonic() - job.arrived,
             policy=req.policy,
             seed=job.seed,
@@ -919,6 +919,8 @@ class RecognitionService:
             motion_s=max(0.0, res.motion_s),
             motion_planning_s=max(0.0, res.motion_planning_s),
             grasp_s=max(0.0, res.grasp_s),
+            search_s=res.search_s,
+            total_s=max(0.0, res.total_s),
         )
 
     # -- e-stop thread

@@ -4,21 +4,26 @@ Used by `activetouch recognize`, `eval`, `demo` and the daemon's simulated robot
 
 from __future__ import annotations
 
+import contextlib
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from activetouch import paths
 from activetouch.config import Config, SessionConfig
+from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
 from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
 from activetouch.planning.policies import POLICY_NAMES, Policy, make_policy
 from activetouch.service.session import Progress, RecognitionResult, RecognitionSession
 from activetouch.sim.objects import ObjectLibrary
 
-FLOATING_ARM = "twin-floating"  # the arm `open_twin` simulates
+if TYPE_CHECKING:
+    from activetouch.devices import Devices
+    from activetouch.planning.motion.base import Placement
 
 
 def model_path(root: Path, explicit: str | None) -> Path:
@@ -100,21 +105,11 @@ def _recognize_on_devices(
     """The recognition on `make_devices(cfg)`: placed through the devices' ``sim/place``, the
     wrist told where the object stands, the table plane from the workcell (as the daemon
     does it)."""
-    from activetouch.devices import make_devices
-    from activetouch.service.messages import SimPlaceRequest
-
     # The library's root is <data>/objects: the devices find the same objects there.
-    devices = make_devices(cfg, library.root.parent)
-    try:
-        if not devices.simulated or devices.ctx.place is None:
-            raise ConfigError(
-                f"hand.type={cfg.hand.type!r} with arm.type={cfg.arm.type!r} cannot place "
-                f"{object_name!r}: recognize in-process needs simulated devices (twin, fake); "
-                "for a real robot run `activetouch serve --hardware` and `recognize --connect`"
-            )
-        devices.ctx.place(SimPlaceRequest(object=object_name, seed=seed))
-        placement = devices.placement()
-        devices.wrist.set_placement(placement)
+    with placed_devices(cfg, library.root.parent, object_name, seed, "recognize") as (
+        devices,
+        placement,
+    ):
         session = RecognitionSession(
             devices.hand,
             devices.wrist,
@@ -127,5 +122,29 @@ def _recognize_on_devices(
             support_z=placement.support_z(cfg.workcell.table_top_z),
         )
         return session.run()
+
+
+@contextlib.contextmanager
+def placed_devices(
+    cfg: Config, data: Path, object_name: str, seed: int, what: str
+) -> Iterator[tuple[Devices, Placement]]:
+    """`make_devices(cfg, data)` with `object_name` placed through their ``sim/place`` and the
+    wrist told where it stands; closed on exit. ConfigError for devices that cannot place
+    (real ones): `what` names the command for the message."""
+    from activetouch.devices import make_devices
+    from activetouch.service.messages import SimPlaceRequest
+
+    devices = make_devices(cfg, data)
+    try:
+        if not devices.simulated or devices.ctx.place is None:
+            raise ConfigError(
+                f"hand.type={cfg.hand.type!r} with arm.type={cfg.arm.type!r} cannot place "
+                f"{object_name!r}: {what} in-process needs simulated devices (twin, fake); "
+                "for a real robot run `activetouch serve --hardware` and `recognize --connect`"
+            )
+        devices.ctx.place(SimPlaceRequest(object=object_name, seed=seed))
+        placement = devices.placement()
+        devices.wrist.set_placement(placement)
+        yield devices, placement
     finally:
         devices.close()

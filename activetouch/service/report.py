@@ -254,8 +254,9 @@ def write_report(
             "",
             "| policy | objects correct at the end (majority of seeds) | runs correct at "
             "the end | median moves to first correct | mean moves to first correct "
-            "(never = budget + 1) | mean planning s per run |",
-            "|---|---|---|---|---|---|",
+            "(never = budget + 1) | mean robot s to first correct (never = the run's) | "
+            "mean robot s per run | mean planning s per run |",
+            "|---|---|---|---|---|---|---|---|",
         ]
     )
     for p in policies:
@@ -263,7 +264,9 @@ def write_report(
         lines.append(
             f"| {p} | {s['objects_final_correct_majority']} of {len(objects)} | "
             f"{s['final_correct_rate']:.0%} | {_fmt(s['median_first_correct'])} | "
-            f"{s['mean_first_correct_capped']:.2f} | {s['mean_planning_s']:.3f} |"
+            f"{s['mean_first_correct_capped']:.2f} | "
+            f"{s.get('mean_robot_s_to_first_correct', float('nan')):.1f} | "
+            f"{s.get('mean_robot_s', float('nan')):.1f} | {s['mean_planning_s']:.3f} |"
         )
     if summary["paired_by_seed"]:
         lines.extend(
@@ -272,14 +275,22 @@ def write_report(
                 "## Tree against the baselines, paired by object and seed",
                 "",
                 "| comparison | mean moves saved by tree (95 % CI) | tree fewer | ties | "
-                "tree more | sign test p |",
-                "|---|---|---|---|---|---|",
+                "tree more | sign test p | mean robot s saved by tree (95 % CI) | "
+                "tree faster / slower | sign test p |",
+                "|---|---|---|---|---|---|---|---|---|",
             ]
         )
         for k, v in summary["paired_by_seed"].items():
+            rs = v.get("robot_s_saved")
+            timed = (
+                f"{rs['mean']:+.1f} [{rs['ci95'][0]:+.1f}, {rs['ci95'][1]:+.1f}] | "
+                f"{rs['tree_faster']} / {rs['tree_slower']} | {rs['sign_p']:.3f}"
+                if rs and rs["mean"] is not None
+                else "| |"
+            )
             lines.append(
                 f"| {k} | {saved_text(v)} | {v['tree_fewer']} | {v['ties']} | "
-                f"{v['tree_more']} | {v.get('sign_p', float('nan')):.3f} |"
+                f"{v['tree_more']} | {v.get('sign_p', float('nan')):.3f} | {timed} |"
             )
     lines.extend(
         [

@@ -9,9 +9,12 @@ when the top class stays above `confidence` for `stable_grasps` grasps in a row,
 budget is spent, when no unvisited pose remains, or when cancelled.
 
 Robot time: the session reports the seconds the arm moved (`motion_s`: the wrist's
-`robot_seconds` over the run, trajectory time), the wall seconds of motion planning (the
-wrist's `planning_seconds`), of the hand's open / preshape / guarded close (`grasp_s`) and of
-the policy's search (`planning_s`); `total_s` is their sum.
+`robot_seconds` over the run, trajectory time), the seconds of the hand's open / preshape /
+guarded close (`grasp_s`: the hand's `robot_seconds` where it has them, as the twin does, else
+wall time), and the wall seconds planning: the policy's search (`search_s`) plus the motion
+layer's (`motion_planning_s`, the wrist's `planning_seconds`), together `planning_s`.
+`total_s` is moving + grasping + planning, and `robot_s` holds that total after each grasp
+(what "robot seconds to first correct" reads).
 
 A wrist that can say which poses it reaches (`reachable(poses) -> bool array`, e.g. Baxter's
 motion layer) is asked once for all the model's poses before the first grasp: the unreachable
@@ -40,6 +43,7 @@ from activetouch.errors import (
 from activetouch.interfaces import Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.planning.motion.base import WristMotion
+from activetouch.planning.observation_model import travel_edge_cost
 from activetouch.planning.policies import Plan, PlanningState, Policy
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
 
@@ -72,7 +76,7 @@ class RecognitionResult:
     contacts: list[np.ndarray] = field(default_factory=list)  # per grasp (n, 3), object frame
     counts: np.ndarray | None = None  # final histogram counts
     skipped: int = 0
-    planning_s: float = 0.0  # the policy's search (wall seconds)
+    search_s: float = 0.0  # the policy's search (wall seconds)
     elapsed_s: float = 0.0
     stop_reason: str = ""  # confident | budget | exhausted | cancelled | skips
     motion_s: float = 0.0  # the arm moving: sum of executed trajectory durations
@@ -80,17 +84,22 @@ class RecognitionResult:
     grasp_s: float = 0.0  # the hand's open / preshape / guarded close (wall seconds)
     unreachable: int = 0  # poses the wrist's `reachable()` ruled out before the first grasp
     reachability_s: float = 0.0  # that check (wall seconds; once per placement, not per grasp)
+    robot_s: list[float] = field(default_factory=list)  # total_s so far, after each grasp
 
     @property
     def moves(self) -> int:
         return len(self.labels)
 
     @property
+    def planning_s(self) -> float:
+        """Planning: the policy's search plus the motion layer's (the robot waits for both)."""
+        return self.search_s + self.motion_planning_s
+
+    @property
     def total_s(self) -> float:
-        """Robot time of the recognition: moving, grasping, searching and motion planning (the
-        robot waits for both plans). The reachability check is left out: it is paid once per
-        placement, not per recognition."""
-        return self.motion_s + self.grasp_s + self.planning_s + self.motion_planning_s
+        """Robot time of the recognition: moving, grasping and planning. The reachability check
+        is left out: it is paid once per placement, not per recognition."""
+        return self.motion_s + self.grasp_s + self.planning_s
 
 
 def display_label(label: str) -> str:
@@ -155,12 +164,17 @@ class RecognitionSession:
         self._grasp_s = 0.0
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
-        """`fn()` (a hand command), its wall time added to the grasping seconds."""
-        t = time.perf_counter()
+        """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
+        seconds where it keeps them (a simulated hand), else wall time."""
+        t, r = time.perf_counter(), self.hand.robot_seconds
         try:
             return fn()
         finally:
-            self._grasp_s += time.perf_counter() - t
+            r1 = self.hand.robot_seconds
+            if r is not None and r1 is not None:
+                self._grasp_s += r1 - r
+            else:
+                self._grasp_s += time.perf_counter() - t
 
     def _grasp_at(self, pose_id: int) -> tuple[Grasp, Pose]:
         pose = Pose.from_array(self._poses[pose_id])
@@ -197,6 +211,21 @@ class RecognitionSession:
         )
         return out
 
+    def _travel_costs(self) -> None:
+        """With ``planner.movement_cost = "travel_time"``: c_m of every model edge from the
+        wrist's estimated move durations (`travel_times`, e.g. Baxter's), once per recognition."""
+        if self.policy.movement_cost != "travel_time":
+            return
+        travel = getattr(self.wrist, "travel_times", None)
+        if travel is None:
+            log.warning(
+                "planner.movement_cost=travel_time: this arm does not estimate travel times; "
+                "the movement cost stays the pose difference"
+            )
+            return
+        seconds = np.asarray(travel(self._poses), dtype=np.float64)
+        self.policy.set_edge_cost(travel_edge_cost(self.model.observation, seconds))
+
     def run(self) -> RecognitionResult:
         t0 = time.perf_counter()
         names = self.model.class_names
@@ -205,6 +234,7 @@ class RecognitionSession:
         clock0 = motion_clock(self.wrist)
         # Unreachable poses are visited from the start: never a first grasp, never planned.
         visited: list[int] = self._unreachable(res)
+        self._travel_costs()
         ruled_out = set(visited)
         counts = np.zeros(self.model.spec.n_bins)
         state: PlanningState | None = None
@@ -231,6 +261,13 @@ class RecognitionSession:
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
             res.contacts.append(hand_to_object(pose, grasp.xyz))
+            now = motion_clock(self.wrist)
+            moved, motion_planned = (
+                (now[0] - clock0[0], now[1] - clock0[1])
+                if now is not None and clock0 is not None
+                else (0.0, 0.0)
+            )
+            res.robot_s.append(moved + self._grasp_s + res.search_s + motion_planned)
             # Consecutive confident grasps agreeing on the same top class.
             if p[best] < self.cfg.confidence or not felt:
                 streak = 0
@@ -239,8 +276,6 @@ class RecognitionSession:
             else:
                 streak = 1
             if self.on_progress is not None:
-                now = motion_clock(self.wrist)
-                moved = now[0] - clock0[0] if now is not None and clock0 is not None else 0.0
                 self.on_progress(
                     Progress(
                         move=len(res.labels),
@@ -305,7 +340,7 @@ class RecognitionSession:
                 res.stop_reason = "cancelled"  # cancel / e-stop ended the plan it was in
                 break
             finally:
-                res.planning_s += time.perf_counter() - tp
+                res.search_s += time.perf_counter() - tp
             if plan.exhausted:
                 res.stop_reason = "exhausted"
                 break

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from activetouch.config import Config
+from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
 from activetouch.model import TrainedModel, train_model
 from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset
@@ -32,13 +33,40 @@ def dataset_meta(cfg: Config) -> dict:
     grid = dataclasses.asdict(cfg.grid)
     if grid["layout"] == "per_object":
         del grid["layout"]  # datasets made before the setting existed were per-object
-    return {
+    sim = dataclasses.asdict(cfg.sim)
+    for key in SIM_TIMING_KEYS:  # robot-time model only: the grasps are the same
+        del sim[key]
+    if sim["sensing"] == "tactile":  # keeps datasets made before the setting valid
+        del sim["sensing"], sim["stall_contact_site"]
+    meta = {
         "source": "twin",
         "grid": grid,
         "support_margin_m": cfg.recognition.support_margin_m,
-        "sim": dataclasses.asdict(cfg.sim),
+        "sim": sim,
         "table": {"center": cfg.workcell.table_center, "size": cfg.workcell.table_size},
     }
+    if cfg.arm.type != FLOATING_ARM:
+        # Which poses were reached depends on the arm and where the object stood.
+        meta["arm"] = {
+            "type": cfg.arm.type,
+            "object_xyz": cfg.workcell.object_xyz,
+            "object_yaw_deg": cfg.workcell.object_yaw_deg,
+        }
+    return meta
+
+
+def dataset_variant(cfg: Config) -> str:
+    """The default dataset's variant for `cfg` (paths.default_dataset): "" for the floating
+    twin's tactile grasps, else what differs (e.g. "baxter", "stall", "baxter-stall")."""
+    parts = []
+    if cfg.arm.type != FLOATING_ARM:
+        parts.append(cfg.arm.type.removeprefix("twin-"))
+    if cfg.sim.sensing != "tactile":
+        parts.append(cfg.sim.sensing)
+    return "-".join(parts)
+
+
+SIM_TIMING_KEYS = ("hand_period_s", "finger_speed_rad_s")
 
 
 def _collect_one(
@@ -61,6 +89,9 @@ def _collect_one(
         if sink is not None:
             sink.put((name, done, total))  # type: ignore[attr-defined]
 
+    attrs = {"extents": [float(v) for v in spec.extents], "set": spec.set}
+    if cfg.arm.type != FLOATING_ARM:
+        return _collect_on_devices(library_root, ds, name, grid, cfg, attrs, report)
     with open_twin(spec, cfg.sim, seed=cfg.sim.seed, workcell=cfg.workcell) as twin:
         return collect_object(
             twin.hand,
@@ -68,9 +99,38 @@ def _collect_one(
             ds,
             name,
             grid,
-            attrs={"extents": [float(v) for v in spec.extents], "set": spec.set},
+            attrs=attrs,
             on_grasp=report,
             support_z=twin.support_z,
+            support_margin_m=cfg.recognition.support_margin_m,
+        )
+
+
+def _collect_on_devices(
+    library_root: str,
+    ds: Dataset,
+    name: str,
+    grid: GridPoses,
+    cfg: Config,
+    attrs: dict,
+    report: Callable[[int, int], None],
+) -> CollectStats:
+    """Collect on the configured simulated devices (e.g. the Baxter twin): the object placed
+    through their ``sim/place``, the arm moving between grasps, only the poses its wrist
+    `reachable()` allows grasped (the rest recorded as skipped, as on the robot)."""
+    from activetouch.service.recognize import placed_devices
+
+    data = Path(library_root).parent
+    with placed_devices(cfg, data, name, cfg.sim.seed, "train") as (devices, placement):
+        return collect_object(
+            devices.hand,
+            devices.wrist,
+            ds,
+            name,
+            grid,
+            attrs=attrs,
+            on_grasp=report,
+            support_z=placement.support_z(cfg.workcell.table_top_z),
             support_margin_m=cfg.recognition.support_margin_m,
         )
 

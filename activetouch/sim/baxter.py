@@ -49,7 +49,12 @@ from activetouch.interfaces import (
     Pose,
     StopLatch,
 )
-from activetouch.planning.motion.robot import BaxterMotionConfig
+from activetouch.planning.motion.robot import (
+    BAXTER_OBJECT_XY,
+    BAXTER_TABLE_CENTER,
+    BAXTER_TABLE_SIZE,
+    BaxterMotionConfig,
+)
 
 if TYPE_CHECKING:
     from activetouch.config import WorkcellConfig
@@ -92,6 +97,17 @@ class TwinBaxterArmConfig(ArmConfig):
             raise ConfigError(f"arm.sample_dt must be in (0, 0.01] s, got {self.sample_dt}")
         if not self.start_tolerance_rad > 0:
             raise ConfigError("arm.start_tolerance_rad must be positive")
+
+    def default_workcell(self) -> dict[str, Any]:
+        """The motion layer's measured Baxter workcell (deploy/baxter-twin.toml): the default
+        one has the table at the base frame's origin, inside Baxter."""
+        top = BAXTER_TABLE_CENTER[2] + BAXTER_TABLE_SIZE[2] / 2
+        return {
+            "table_center": list(BAXTER_TABLE_CENTER),
+            "table_size": list(BAXTER_TABLE_SIZE),
+            "object_xyz": [*BAXTER_OBJECT_XY, top + 0.05],  # z: a 0.1 m object's centre
+            "object_yaw_deg": 0.0,
+        }
 
     def make(self, ctx: DeviceContext) -> Arm:
         from activetouch.sim.devices import PacedArm, twin_rig
@@ -468,7 +484,15 @@ def make_twin_wrist(
             return super().plan(pose, q_start)
 
         def reachable(self, poses_object: np.ndarray) -> np.ndarray:
+            """The motion layer's verdict, and the open hand at the pose clear of the table
+            and the real object mesh (the floating twin's check: the motion layer sees the
+            object's hull, and not at the goal, where a grasp touches it)."""
             self.sync_object()
-            return super().reachable(poses_object)
+            poses = np.atleast_2d(poses_object)
+            ok = super().reachable(poses)
+            for i in np.flatnonzero(ok):
+                if world.check_hand_pose(Pose.from_array(poses[i])) is not None:
+                    ok[i] = False
+            return ok
 
     return TwinBaxterWrist()

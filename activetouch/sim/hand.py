@@ -144,8 +144,21 @@ class SimHand(Hand):
         self._pad = int(links.pad)
         self._far_sites = np.full((N_SENSORS, 3), 1.0e3)
         self._far_sites[N_FINGER_SENSORS:] = palm_site_positions(world.geometry)
+        if not 5 <= self.cfg.stall_contact_site <= 8:
+            raise ValueError("stall_contact_site must be a distal sensor index, 5..8")
+        if self.cfg.hand_period_s <= 0 or self.cfg.finger_speed_rad_s <= 0:
+            raise ValueError("hand_period_s and finger_speed_rad_s must be > 0")
         self.last_close: CloseResult | None = None
         self.stop_latch = StopLatch()
+        self._robot_seconds = 0.0
+
+    @property
+    def robot_seconds(self) -> float:
+        """Robot time of the hand's commands so far (`SimConfig.hand_period_s`, ...)."""
+        return self._robot_seconds
+
+    def _spool(self) -> np.ndarray:
+        return self.world.proximal + self.world.distal
 
     # -- Hand interface -------------------------------------------------------------------
 
@@ -162,7 +175,10 @@ class SimHand(Hand):
         self._state_rng = np.random.default_rng([self.seed, 1])
 
     def open(self) -> None:
+        before = self._spool()
         self.world.open_fingers()
+        travel = float(np.abs(before - self._spool()).max())
+        self._robot_seconds += travel / self.cfg.finger_speed_rad_s
 
     def stop(self) -> None:
         """Halt the fingers: a running guarded close ends at its next spool step (it raises),
@@ -178,6 +194,7 @@ class SimHand(Hand):
         if not (0.0 <= a <= self.cfg.preshape_limit_rad):
             raise ValueError(f"preshape {a} rad is outside 0..{self.cfg.preshape_limit_rad}")
         w = self.world
+        self._robot_seconds += abs(a - w.preshape_angle) / self.cfg.finger_speed_rad_s
         w.set_hand(a, w.proximal, w.distal)
 
     def state(self) -> HandState:
@@ -205,6 +222,7 @@ class SimHand(Hand):
         stall = cfg.stall_depth_m
         prox, dist = w.proximal, w.distal
         spool = prox + dist  # the tendon wraps both joints
+        spool0 = spool.copy()
         blocked = np.zeros(N_FINGERS, dtype=bool)
         active = np.ones(N_FINGERS, dtype=bool)
         fine = np.zeros(N_FINGERS, dtype=bool)
@@ -304,12 +322,35 @@ class SimHand(Hand):
         self.last_close = CloseResult(
             tuple(reasons), spool.copy(), prox.copy(), dist.copy(), queries
         )
+        # One spool step per control period, then the reading at the final pose.
+        steps = int(np.ceil(float((spool - spool0).max()) / step - 1e-9))
+        self._robot_seconds += (max(steps, 0) + 1) * cfg.hand_period_s
+        if cfg.sensing == "stall":
+            return self._stall_grasp(reasons, pressures)
         ids = np.flatnonzero(pressures > thr)
         return Grasp(
             sensor_ids=ids,
             xyz=w.sensor_sites_hand()[ids],
             pressures=pressures[ids],
             finger_angles=prox.copy(),
+            preshape=w.preshape_angle,
+        )
+
+    def _stall_grasp(self, reasons: list[str], pressures: np.ndarray) -> Grasp:
+        """The ReFlex SF's grasp: no tactile sensors, so each finger that stopped against the
+        object (a stall under load) reports one contact at its distal sensor site."""
+        w = self.world
+        stopped = [f for f in range(N_FINGERS) if reasons[f] in (STOP_CONTACT, STOP_STALL)]
+        ids = np.array(
+            [f * SENSORS_PER_FINGER + self.cfg.stall_contact_site for f in stopped], dtype=int
+        )
+        finger = pressures[:N_FINGER_SENSORS].reshape(N_FINGERS, SENSORS_PER_FINGER)
+        load = np.array([max(float(finger[f].clip(0).sum()), 0.0) for f in stopped])
+        return Grasp(
+            sensor_ids=ids,
+            xyz=w.sensor_sites_hand()[ids].reshape(-1, 3),
+            pressures=load,  # the finger's summed pressure stands in for the servo load
+            finger_angles=w.proximal.copy(),
             preshape=w.preshape_angle,
         )
 

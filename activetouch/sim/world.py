@@ -392,6 +392,18 @@ class SimWorld:
         )
         self.set_hand(self._preshape, prox, dist)
 
+    def check_hand_pose(self, pose: Pose) -> str | None:
+        """Why the open hand could not be at `pose` (object frame): it would sink into the
+        table or the object (`collision_reason`); None if it can. Nothing moves."""
+        before = (self.wrist_pose, self.preshape_angle, self.proximal, self.distal)
+        try:
+            self.open_fingers()
+            self.set_wrist(pose)
+            return self.collision_reason()
+        finally:
+            self.set_wrist(before[0])
+            self.set_hand(before[1], before[2], before[3])
+
     def sensor_sites_hand(self) -> np.ndarray:
         """(38, 3) sensor-site XYZ in the hand frame at the current joint angles."""
         return sensor_positions(self.geometry, self._preshape, self._proximal, self._distal)
@@ -536,12 +548,7 @@ class SimArm(Arm):
 
     def check_pose(self, pose: Pose) -> str | None:
         """Why the wrist could not be at `pose` (object frame), or None; nothing moves."""
-        w = self.world
-        before = (w.wrist_pose, w.preshape_angle, w.proximal, w.distal)
-        reason = self._try_pose(pose)
-        w.set_wrist(before[0])
-        w.set_hand(before[1], before[2], before[3])
-        return reason
+        return self.world.check_hand_pose(pose)
 
     def execute(self, trajectory: JointTrajectory) -> None:
         """Follow a wrist trajectory (see the class); on a collision the hand stays at the last

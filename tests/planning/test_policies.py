@@ -236,3 +236,29 @@ def test_absolute_actions_find_the_discriminating_pose() -> None:
     lo1 = int(ab.edge_ptr[1])
     e13 = lo1 + int(np.flatnonzero(ab.edge_target[lo1 : ab.edge_ptr[2]] == 3)[0])
     assert ab.edge_action[e03] == ab.edge_action[e13] and ab.edge_cost[e03] > ab.edge_cost[e13]
+
+
+def test_travel_time_edge_costs_steer_the_movement_term() -> None:
+    # c_m from an arm's move durations (planner.movement_cost = "travel_time"): with all the
+    # weight on movement the search goes where the arm gets fastest, and NaN (a move the arm
+    # cannot make) costs the most.
+    from activetouch.planning.observation_model import travel_edge_cost
+
+    model, kernel = lookahead_problem()
+    P = model.n_poses
+    cfg = PlannerConfig(horizon=1, simulations=2000, lam=1.0, movement_cost="travel_time")
+    greedy = make_policy("greedy", cfg, model, kernel)
+    assert greedy.movement_cost == "travel_time"
+    for fast in range(1, P):
+        seconds = np.full((P, P), 6.0)
+        seconds[0, fast] = 1.5
+        seconds[0, (fast % (P - 1)) + 1] = np.nan
+        cost = travel_edge_cost(model, seconds)
+        assert cost.min() == pytest.approx(0.25) and cost.max() == 1.0
+        greedy.set_edge_cost(cost)
+        assert greedy.plan(start_state(), np.random.default_rng(0)).poses.tolist() == [fast]
+    with pytest.raises(ValueError):
+        travel_edge_cost(model, np.zeros((P + 1, P + 1)))
+    with pytest.raises(ValueError):
+        greedy.set_edge_cost(np.zeros(3))
+    make_policy("random", cfg, model, kernel).set_edge_cost(cost)  # no movement term: ignored

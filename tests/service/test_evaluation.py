@@ -130,3 +130,30 @@ def test_eval_user_mistakes(trained_home, tmp_path, capsys):
     assert main(["eval", "--data", str(tmp_path / "empty"), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and "no model" in err
+
+
+def test_robot_seconds_to_first_correct_are_summarised_and_paired():
+    from activetouch.service.evaluation import robot_s_at
+
+    assert robot_s_at([4.0, 9.0, 13.0], 2) == 9.0
+    assert robot_s_at([4.0, 9.0], None) is None and robot_s_at([], 1) is None
+
+    def timed(policy, seed, first, robot_s):
+        r = _run("cup", policy, seed, first, first is not None)
+        r["robot_s_to_first_correct"] = robot_s_at(robot_s, first)
+        r["total_s"] = robot_s[-1]
+        return r
+
+    runs = [
+        timed("tree", 0, 2, [5.0, 11.0, 15.0]),
+        timed("greedy", 0, 1, [5.0, 12.0]),
+        timed("tree", 1, 1, [4.0]),
+        timed("greedy", 1, None, [4.0, 9.0, 20.0]),  # never: its whole 20 s counts
+    ]
+    s = summarise(runs, max_moves=3)
+    assert s["per_policy"]["tree"]["mean_robot_s_to_first_correct"] == pytest.approx(7.5)
+    assert s["per_policy"]["greedy"]["mean_robot_s_to_first_correct"] == pytest.approx(12.5)
+    assert s["per_policy"]["greedy"]["never_correct"] == 1
+    saved = s["paired_by_seed"]["tree_vs_greedy"]["robot_s_saved"]
+    assert saved["mean"] == pytest.approx(((5.0 - 11.0) + (20.0 - 4.0)) / 2)
+    assert (saved["tree_faster"], saved["tree_slower"]) == (1, 1)

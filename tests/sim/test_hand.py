@@ -375,3 +375,46 @@ def test_stop_ends_a_running_guarded_close_within_one_step(rig) -> None:
     hand.open()  # releasing stays allowed
     hand.clear_stop()
     assert hand.guarded_close().n_contacts >= 3
+
+
+def test_stall_sensing_reports_one_distal_contact_per_stopped_finger() -> None:
+    # The ReFlex SF's grasp in the twin: no tactile sensors, a finger that stopped against the
+    # object gives one contact at its distal site (drivers/reflex/sf.py reports the same).
+    r = 0.06
+    cfg = dataclasses.replace(SimConfig(), sensing="stall", stall_contact_site=6)
+    with SimWorld(cfg) as w:
+        arm, hand = SimArm(w), SimHand(w)
+        tactile = SimHand(w, dataclasses.replace(cfg, sensing="tactile"))
+        w.place_primitive("sphere", r)
+        pose = Pose([-(r + PAD + 0.005), 0, 0], SIDE)
+        g = grasp_at(arm, hand, pose)
+        assert hand.last_close.stop_reasons == (STOP_CONTACT,) * 3
+        assert g.sensor_ids.tolist() == [6, 15, 24]
+        np.testing.assert_allclose(g.xyz, w.sensor_sites_hand()[[6, 15, 24]])
+        assert np.all(g.pressures > 0)  # the fingers press: their load stands in for pressure
+        # The same close as the tactile hand's: only what is reported differs.
+        full = grasp_at(arm, tactile, pose)
+        assert tactile.last_close.stop_reasons == hand.last_close.stop_reasons
+        assert len(full.sensor_ids) > 3
+        w.clear()
+        empty = grasp_at(arm, hand, Pose([0, 0, 0.3], TOP))  # nothing there: fingers at their limit
+        assert empty.n_contacts == 0
+        assert hand.last_close.stop_reasons == (STOP_LIMIT,) * 3
+
+
+def test_the_hand_keeps_robot_time() -> None:
+    # A close takes one spool step per control period; opening runs at the servos' speed.
+    cfg = SimConfig()
+    with SimWorld(cfg) as w:
+        arm, hand = SimArm(w), SimHand(w)
+        assert hand.robot_seconds == 0.0
+        grasp_at(arm, hand, Pose([0, 0, 0.3], TOP))  # nothing to touch: to the spool limit
+        steps = int(np.ceil(cfg.spool_limit_rad / cfg.spool_step_rad))
+        assert hand.robot_seconds == pytest.approx((steps + 1) * cfg.hand_period_s)
+        before = hand.robot_seconds
+        hand.open()
+        travel = cfg.spool_limit_rad - cfg.open_spool_rad
+        assert hand.robot_seconds - before == pytest.approx(travel / cfg.finger_speed_rad_s)
+        before = hand.robot_seconds
+        hand.preshape(0.5)
+        assert hand.robot_seconds - before == pytest.approx(0.5 / cfg.finger_speed_rad_s)

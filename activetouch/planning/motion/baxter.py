@@ -28,19 +28,18 @@ from activetouch.planning.motion.collision import CollisionScene
 from activetouch.planning.motion.ik import IKSolver, SeedTable
 from activetouch.planning.motion.paths import rrt_connect, segment_free
 from activetouch.planning.motion.robot import (
+    BAXTER_OBJECT_XY,
+    BAXTER_TABLE_CENTER,
+    BAXTER_TABLE_SIZE,
     ArmModel,
     BaxterMotionConfig,
     load_arm,
     pose_to_se3,
 )
-from activetouch.planning.motion.timing import sample, time_path
 
-# A Baxter workcell (base frame): a 0.75 m-high table in front of the robot (Baxter's base
-# frame is ~0.93 m above the floor), the object ahead of the left arm. Measured in
-# python -m activetouch bench motion against other placements: see docs/motion.md.
-BAXTER_TABLE_CENTER = (0.85, 0.2, -0.205)
-BAXTER_TABLE_SIZE = (0.8, 1.4, 0.05)
-BAXTER_OBJECT_XY = (0.6, 0.25)
+__all__ = ["BAXTER_OBJECT_XY", "BAXTER_TABLE_CENTER", "BAXTER_TABLE_SIZE", "BaxterWristMotion"]
+from activetouch.planning.motion.timing import sample, straight_duration, time_path
+
 SEED_TABLE_SIZE = 20000
 
 
@@ -230,6 +229,31 @@ class BaxterWristMotion(WristMotion):
             self.seeds.add(np.array(found))
         return ok
 
+    def travel_times(self, poses_object: np.ndarray) -> np.ndarray:
+        """(n, n) estimated seconds of the move from grasp pose i to grasp pose j (object
+        frame, (n, 7)), before planning: the retreat from i's goal to its pre-grasp, a straight
+        joint-space transit between the pre-grasps, the approach to j's goal, each timed in
+        closed form as ruckig times it (`straight_duration`). NaN where either pose is
+        unreachable (call `reachable` first: solutions are reused, not solved here). A path
+        that must go round something (a lift, OMPL) takes longer than estimated."""
+        poses = np.atleast_2d(poses_object)
+        n, nq = len(poses), self.model.nq
+        goal, pre = np.full((n, nq), np.nan), np.full((n, nq), np.nan)
+        for i, p in enumerate(poses):
+            hit = self._goals.get(pose_key(self.placement.to_base(Pose.from_array(p))))
+            if hit is not None and not isinstance(hit, str):
+                goal[i], pre[i] = hit
+        limits = (self.velocity, self.acceleration, self.jerk)
+        ends = straight_duration(goal - pre, *limits)  # retreat = approach, reversed
+        out = np.empty((n, n))
+        for i in range(n):  # row by row: (n, nq) at a time, not (n, n, nq)
+            out[i] = ends[i] + straight_duration(pre - pre[i], *limits) + ends
+        ok = np.isfinite(goal).all(axis=1)
+        out[~ok, :] = np.nan
+        out[:, ~ok] = np.nan
+        np.fill_diagonal(out, 0.0)
+        return out
+
     def _pre_grasp(self, target, q_goal: np.ndarray) -> np.ndarray | None:
         """The goal backed off along -z, collision-free with the object, near `q_goal`, and
         joined to it by a free straight segment (object ignored)."""
@@ -360,6 +384,13 @@ class BaxterWristMotion(WristMotion):
             and np.allclose(q0, last.goal, atol=1e-6)
         ):
             return last.pre_grasp
+        if last is not None:
+            # Stopped part way along the last move's approach or retreat (a contact the
+            # object-blind check could not see): back along that checked line to its free end.
+            wp = last.waypoints
+            for a, b in ((wp[-1], wp[-2]), (wp[0], wp[1])) if len(wp) >= 2 else ():
+                if on_segment(q0, a, b) and not self.scene.in_collision(b, True):
+                    return b
         pin.forwardKinematics(self.model.model, self.ik.data, q0)
         now = pin.updateFramePlacement(self.model.model, self.ik.data, self.model.hand_frame)
         back = offset_along_z(now.copy(), -cfg.approach_m)
@@ -387,6 +418,16 @@ class BaxterWristMotion(WristMotion):
         self.last_motion_s = plan.duration_s
         self.robot_seconds += plan.duration_s
         self.moves += 1
+
+
+def on_segment(q: np.ndarray, a: np.ndarray, b: np.ndarray, tol: float = 1e-6) -> bool:
+    """True if `q` lies on the joint-space segment a -> b (within `tol` rad)."""
+    d = b - a
+    n2 = float(d @ d)
+    if n2 < 1e-18:
+        return bool(np.max(np.abs(q - a)) <= tol)
+    u = float(np.clip((q - a) @ d / n2, 0.0, 1.0))
+    return bool(np.max(np.abs(a + u * d - q)) <= tol)
 
 
 def pose_key(pose: Pose) -> bytes:

@@ -37,6 +37,12 @@ TUCKED_LEFT = (-1.0, -2.07, 3.0, 2.55, 0.0, 0.01, 0.0)
 # A bent pose with the hand in front of the robot, palm down: q = 0 is a singular straight arm.
 READY_LEFT = (0.0, -0.55, 0.0, 1.25, 0.0, 0.87, 0.0)
 DESCRIPTION = "example-robot-data/robots/baxter_description"
+# A Baxter workcell (base frame): a 0.75 m-high table in front of the robot (Baxter's base
+# frame is ~0.93 m above the floor), the object ahead of the left arm. Measured in
+# python -m activetouch bench motion against other placements: see docs/motion.md.
+BAXTER_TABLE_CENTER = (0.85, 0.2, -0.205)
+BAXTER_TABLE_SIZE = (0.8, 1.4, 0.05)
+BAXTER_OBJECT_XY = (0.6, 0.25)
 
 
 def mirror_arm(q_left: tuple[float, ...] | np.ndarray) -> np.ndarray:

@@ -117,12 +117,25 @@ def sample(segments: list[Segment], dt: float) -> tuple[np.ndarray, ...]:
     return np.concatenate(times), np.vstack(pos), np.vstack(vel), np.vstack(acc)
 
 
-def duration_estimate(
-    q0: np.ndarray, q1: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray
-) -> float:
-    """Lower bound on a rest-to-rest move's duration (trapezoid, per joint), before planning."""
-    d = np.abs(np.asarray(q1) - np.asarray(q0))
-    v, a = np.asarray(velocity), np.asarray(acceleration)
-    t_tri = 2 * np.sqrt(d / a)
-    t_trap = d / v + v / a
-    return float(np.max(np.where(d < v * v / a, t_tri, t_trap)))
+def straight_duration(
+    delta: np.ndarray, velocity: np.ndarray, acceleration: np.ndarray, jerk: np.ndarray
+) -> np.ndarray:
+    """Duration of `rest_to_rest` moves by `delta` (..., n), in closed form (no ruckig): the
+    time-optimal jerk-limited rest-to-rest profile of the path parameter u from 0 to 1 under
+    `path_limits`. What a move costs before it is planned (the planner's travel-time c_m)."""
+    d = np.maximum(np.abs(np.asarray(delta, dtype=np.float64)), 1e-12)
+    v = np.min(np.asarray(velocity) / d, axis=-1)
+    a = np.min(np.asarray(acceleration) / d, axis=-1)
+    j = np.min(np.asarray(jerk) / d, axis=-1)
+    # Reaching v: with the acceleration limit (t = v/a + a/j) or on jerk alone (2 sqrt(v/j));
+    # accelerating to v and back covers v * t; a longer move cruises the rest at v.
+    reach_a = v * j >= a * a
+    t_v = np.where(reach_a, v / a + a / j, 2.0 * np.sqrt(v / j))
+    cruise = 1.0 / v + t_v
+    # v not reached: with a reached (distance >= 2 a^3 / j^2), half of the move is a jerk-up,
+    # constant-a, jerk-down of x + 2 a/j s; otherwise four jerk phases of (1 / (2 j))^(1/3).
+    c = a / j
+    x = (-3.0 * c + np.sqrt(c * c + 4.0 / a)) / 2.0
+    short = np.where(2.0 * a * c * c <= 1.0, 2.0 * (x + 2.0 * c), 4.0 * np.cbrt(0.5 / j))
+    out = np.where(v * t_v <= 1.0, cruise, short)
+    return np.where(np.abs(np.asarray(delta)).max(axis=-1) > 1e-9, out, 0.0)

@@ -90,13 +90,14 @@ def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int 
         "moves": res.moves,
         "skipped": res.skipped,
         "stop_reason": res.stop_reason,
-        "planning_s": res.planning_s,
         "elapsed_s": res.elapsed_s,
         "pose_ids": res.pose_ids,
-        # Robot time (docs/motion.md): moving (trajectory seconds), grasping, motion planning;
-        # total_s adds the search (planning_s).
+        # Robot time (docs/motion.md): moving (trajectory seconds), grasping, planning (the
+        # search plus motion planning), and their total.
         "motion_s": res.motion_s,
         "grasp_s": res.grasp_s,
+        "planning_s": res.planning_s,
+        "search_s": res.search_s,
         "motion_planning_s": res.motion_planning_s,
         "total_s": res.total_s,
         "unreachable": res.unreachable,

@@ -52,7 +52,7 @@ def train(
     workers: int | None,
     console: Console,
 ) -> Path:
-    from activetouch.service.training import collect, fit_and_save
+    from activetouch.service.training import collect, dataset_variant, fit_and_save
 
     cfg = load_config(cfg_path, overrides)
     if workers is not None and workers < 1:
@@ -60,7 +60,7 @@ def train(
     library = ObjectLibrary(paths.objects_dir(root))
     with console.status("preparing the object library"):
         library.ensure_builtins()
-    dataset = dataset or paths.default_dataset(root)
+    dataset = dataset or paths.default_dataset(root, dataset_variant(cfg))
     out = out or paths.default_model(root)
 
     t0 = time.perf_counter()

@@ -110,3 +110,32 @@ def test_reachable_goals_are_reused_and_the_retreat_is_the_last_pre_grasp(motion
     # A new placement forgets the solutions (they were for the old scene).
     motion.set_placement(baxter_placement(float(EXTENTS[2]), xy=(0.62, 0.25)))
     assert not motion._goals and motion.last_plan is None
+
+
+def test_travel_times_estimate_the_planned_moves(motion):
+    # Grasp to grasp: retreat, straight transit, approach, timed as ruckig times them.
+    poses = np.array(
+        [
+            grasp([0, 0, 1]).as_array(),
+            grasp([0, 0, 1], roll=np.pi / 2).as_array(),
+            grasp([-0.3, 0, 1]).as_array(),
+            grasp([1, 0, 0.2]).as_array(),  # unreachable
+        ]
+    )
+    ok = motion.reachable(poses)
+    assert ok.tolist() == [True, True, True, False]
+    est = motion.travel_times(poses)
+    assert est.shape == (4, 4) and np.all(np.diag(est) == 0.0)
+    assert np.isnan(est[3, :3]).all() and np.isnan(est[:3, 3]).all()
+    np.testing.assert_allclose(est[:3, :3], est[:3, :3].T)  # the same path back
+    motion.move_to(Pose.from_array(poses[0]))
+    straight = 0
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        motion.move_to(Pose.from_array(poses[j]))
+        plan = motion.last_plan
+        if not plan.used_rrt and len(plan.waypoints) == 4:  # grasp, retreat, pre-grasp, goal
+            assert plan.duration_s == pytest.approx(est[i, j], rel=1e-6)
+            straight += 1
+        else:  # a path round something takes longer than the straight estimate
+            assert plan.duration_s >= est[i, j] * 0.999
+    assert straight >= 1

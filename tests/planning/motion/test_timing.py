@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 
 from activetouch.planning.motion.timing import (
-    duration_estimate,
     path_limits,
     rest_to_rest,
     sample,
+    straight_duration,
     time_path,
 )
 
@@ -44,11 +44,18 @@ def test_1khz_samples_within_limits_on_the_line_and_at_rest():
         assert np.all(np.diff(s) >= -1e-12)
 
 
-def test_duration_estimate_is_a_lower_bound():
+def test_closed_form_duration_is_ruckigs():
+    # Short moves (jerk only), medium (acceleration reached) and long (cruising at v).
     rng = np.random.default_rng(1)
-    for _ in range(20):
-        a, b = rng.uniform(-1.5, 1.5, (2, 7))
-        assert duration_estimate(a, b, V, A) <= rest_to_rest(a, b, V, A, J).duration + 1e-9
+    for scale in (1e-3, 1e-2, 0.1, 0.5, 2.0):
+        for _ in range(10):
+            a = rng.uniform(-1.5, 1.5, 7)
+            b = a + rng.uniform(-1, 1, 7) * scale
+            exact = rest_to_rest(a, b, V, A, J).duration
+            assert straight_duration(b - a, V, A, J) == pytest.approx(exact, rel=1e-9)
+    deltas = rng.uniform(-1, 1, (3, 4, 7))  # broadcasts over leading axes
+    assert straight_duration(deltas, V, A, J).shape == (3, 4)
+    assert straight_duration(np.zeros(7), V, A, J) == 0.0
 
 
 def test_zero_length_steps_are_skipped():
