@@ -117,13 +117,15 @@ class JointState:
 
 @dataclass(frozen=True)
 class JointTrajectory:
-    """A timed joint trajectory: positions (n_points, n_joints) at times (n_points,) seconds."""
+    """A timed joint trajectory: positions (n_points, n_joints) at times (n_points,) seconds,
+    with velocities and accelerations (same shape) where the planner timed them."""
 
     names: tuple[str, ...]
     times: np.ndarray
     positions: np.ndarray
     velocities: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    accelerations: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

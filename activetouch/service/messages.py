@@ -193,6 +193,7 @@ class JointTrajectoryMsg(Message, kw_only=True):
     positions: list[list[float]]
     velocities: list[list[float]] | None = None
     meta: dict[str, Any] = {}
+    accelerations: list[list[float]] | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -201,7 +202,11 @@ class JointTrajectoryMsg(Message, kw_only=True):
             raise ValueError("`names` has duplicates")
         if any(b < a for a, b in zip(self.times, self.times[1:], strict=False)):
             raise ValueError("`times` must not decrease")
-        for field, rows in (("positions", self.positions), ("velocities", self.velocities)):
+        for field, rows in (
+            ("positions", self.positions),
+            ("velocities", self.velocities),
+            ("accelerations", self.accelerations),
+        ):
             if rows is None:
                 continue
             if len(rows) != n_pts:
@@ -682,6 +687,11 @@ def trajectory_to_msg(traj: JointTrajectory) -> JointTrajectoryMsg:
                 if traj.velocities is None
                 else _floats(np.asarray(traj.velocities).reshape(-1, n_j), "velocities")
             ),
+            accelerations=(
+                None
+                if traj.accelerations is None
+                else _floats(np.asarray(traj.accelerations).reshape(-1, n_j), "accelerations")
+            ),
             meta=dict(traj.meta),
         )
     except ValueError as e:
@@ -698,6 +708,11 @@ def trajectory_from_msg(msg: JointTrajectoryMsg) -> JointTrajectory:
             None
             if msg.velocities is None
             else np.array(msg.velocities, dtype=np.float64).reshape(-1, n_j)
+        ),
+        accelerations=(
+            None
+            if msg.accelerations is None
+            else np.array(msg.accelerations, dtype=np.float64).reshape(-1, n_j)
         ),
         meta=dict(msg.meta),
     )

@@ -29,7 +29,9 @@ and PyBullet load when a device is made.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import json
 import logging
 import time
 from collections.abc import Iterator
@@ -137,10 +139,21 @@ class TwinBaxterArmConfig(ArmConfig):
 
 
 def baxter_model(ctx: DeviceContext, cfg: BaxterMotionConfig) -> ArmModel:
-    """The arm model, loaded once per device context."""
+    """The arm model, loaded once per process and configuration (seconds of mesh loading
+    that every recognition of an `eval` would pay again), shared by the context's devices."""
+    return ctx.shared(BAXTER_MODEL, lambda: _load_arm(json.dumps(dataclasses.asdict(cfg))))
+
+
+@functools.lru_cache(maxsize=4)
+def _load_arm(cfg_json: str) -> ArmModel:
     from activetouch.planning.motion.robot import load_arm
 
-    return ctx.shared(BAXTER_MODEL, lambda: load_arm(cfg))
+    return load_arm(BaxterMotionConfig(**json.loads(cfg_json)))
+
+
+# Solved goals per scene (object, placement, table, motion settings), kept for the process:
+# an evaluation places the same object at the same spot run after run.
+_GOALS: dict[str, dict] = {}
 
 
 def check_object_xy(workcell: WorkcellConfig) -> None:
@@ -453,12 +466,13 @@ def make_twin_wrist(
     world (whatever `sim/place` put on the table)."""
     from activetouch.planning.motion.baxter import BaxterWristMotion
 
+    wc = world.workcell
+
     class TwinBaxterWrist(BaxterWristMotion):
         """The object is where the world put it, with the shape of what it put there: a given
         placement is ignored (the world knows better), the scene follows the world."""
 
         def __init__(self) -> None:
-            wc = world.workcell
             super().__init__(
                 arm, world_placement(world), wc.table_center, wc.table_size, cfg, model
             )
@@ -476,7 +490,15 @@ def make_twin_wrist(
             self._object_key = key
             self.placement = world_placement(world)
             self.scene.set_object(self.placement if key is not None else None, hull, extents)
-            self._goals.clear()
+            scene = (
+                None if key is None else key[1:],  # the body id changes with every world
+                self.placement.xyz.tolist(),
+                self.placement.yaw_rad,
+                list(wc.table_center),
+                list(wc.table_size),
+                dataclasses.asdict(cfg),
+            )
+            self._goals = _GOALS.setdefault(repr(scene), {})
             self.last_plan = None
 
         def plan(self, pose: Pose, q_start: np.ndarray | None = None) -> MotionPlan:

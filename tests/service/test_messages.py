@@ -68,11 +68,15 @@ def test_pose_hand_state_joint_state_trajectory_round_trips() -> None:
         times=np.array([0.0, 0.5, 1.0]),
         positions=np.arange(6.0).reshape(3, 2),
         velocities=np.zeros((3, 2)),
+        accelerations=np.array([[1.5, -1.5], [0.0, 0.0], [-1.5, 1.5]]),
         meta={"ik": "pinocchio", "cost": np.float64(0.25), "seg": np.array([1, 2])},
     )
     tb = m.from_msg(m.decode(m.encode(m.to_msg(traj)), m.JointTrajectoryMsg))
     np.testing.assert_array_equal(tb.positions, traj.positions)
     np.testing.assert_array_equal(tb.velocities, traj.velocities)
+    np.testing.assert_array_equal(tb.accelerations, traj.accelerations)
+    with pytest.raises(m.MessageError):  # one row short
+        m.to_msg(JointTrajectory(("a",), np.zeros(2), np.zeros((2, 1)), accelerations=np.zeros(1)))
     assert tb.meta == {"ik": "pinocchio", "cost": 0.25, "seg": [1, 2]}
 
 

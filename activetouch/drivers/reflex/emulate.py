@@ -3,6 +3,13 @@
     python -m activetouch.drivers.reflex.emulate reflex-takktile --state-to 127.0.0.1:11333 \
         --command-listen 127.0.0.1:11334 --contact-spool 1.0 1.5 inf --loss 0.05
     python -m activetouch.drivers.reflex.emulate reflex-sf      # prints the pty to open
+    python -m activetouch emulate reflex-takktile --object mug   # fingers and pads from the twin
+
+Fingers: by default each finger meets an object at its `--contact-spool` angle (a kinematic
+model, no PyBullet). With `--object NAME` they are the twin's instead: the library object
+(trained or added in `--data`) stands in a twin world, the hand at `--wrist` (object frame;
+default: from above, palm down, 1 cm over the object's box), and the spools the
+driver commands pose the twin's fingers against it; pressures are the twin's tactile model.
 
 (`python -m activetouch emulate ...` should forward here: the CLI lives outside this package.)
 """
@@ -10,9 +17,11 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import threading
+from collections.abc import Iterator
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,14 +47,65 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stuck-zero", type=int, nargs="*", default=[], help="sensor ids reading 0")
     p.add_argument("--stuck-saturated", type=int, nargs="*", default=[], help="ids reading max")
     p.add_argument("--mute", type=int, nargs="*", default=[], help="SF servo ids not answering")
+    p.add_argument("--object", default=None, help="back the fingers by the twin with this object")
+    p.add_argument("--data", default=None, help="data directory of the object library")
+    p.add_argument(
+        "--wrist",
+        type=float,
+        nargs=7,
+        default=None,
+        metavar=("X", "Y", "Z", "QX", "QY", "QZ", "QW"),
+        help="hand pose in the object frame (with --object)",
+    )
     return p
+
+
+@contextlib.contextmanager
+def twin_backed(a: argparse.Namespace) -> Iterator[object]:
+    """`TwinFingers` on a twin world holding `a.object`, the hand at `a.wrist` (or beside it)."""
+    from activetouch import paths
+    from activetouch.config import load_config
+    from activetouch.drivers.reflex.twin_fingers import TwinFingers
+    from activetouch.errors import ActiveTouchError
+    from activetouch.interfaces import Pose
+    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.sim.twin import open_twin
+
+    cfg = load_config()
+    library = ObjectLibrary(paths.objects_dir(paths.data_dir(a.data)))
+    library.ensure_builtins()
+    spec = library.get(a.object)
+    if a.wrist is not None:
+        pose = Pose(a.wrist[:3], a.wrist[3:])
+    else:  # from above, palm down, 1 cm over the object's box
+        pose = Pose([0.0, 0.0, spec.extents[2] / 2 + PALM_PAD_M + 0.01], TOP_QUAT)
+    with open_twin(spec, cfg.sim, seed=a.seed, workcell=cfg.workcell) as twin:
+        try:
+            twin.wrist.move_to(pose)
+        except ActiveTouchError as e:
+            raise SystemExit(f"error: the hand cannot be at {pose}: {e}") from None
+        yield TwinFingers(twin.world, twin.hand)
+
+
+PALM_PAD_M = 0.0896  # the palm pad's height above the ReFlex base frame (hardware-facts)
+TOP_QUAT = (1.0, 0.0, 0.0, 0.0)  # hand +z pointing down (x, y, z, w)
 
 
 def main(argv: list[str] | None = None) -> int:
     from activetouch.drivers.reflex.emulator_takktile import KinematicFingers
 
     a = build_parser().parse_args(argv)
-    fingers = KinematicFingers(contact_spool=list(a.contact_spool))
+    if a.object is None and a.wrist is not None:
+        raise SystemExit("error: --wrist places the hand against --object: give --object too")
+    with contextlib.ExitStack() as stack:
+        if a.object is not None:
+            fingers = stack.enter_context(twin_backed(a))
+        else:
+            fingers = KinematicFingers(contact_spool=list(a.contact_spool))
+        return _serve(a, fingers)
+
+
+def _serve(a: argparse.Namespace, fingers: object) -> int:
     done = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())

@@ -331,8 +331,8 @@ class BaxterWristMotion(WristMotion):
             times=times,
             positions=pos,
             velocities=vel,
+            accelerations=acc,
             meta={
-                "accelerations": acc,
                 "duration_s": duration,
                 "planning_s": planning,
                 "waypoints": waypoints,

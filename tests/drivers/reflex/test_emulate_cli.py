@@ -49,3 +49,40 @@ def test_emulator_process_serves_the_driver():
         proc.terminate()
         proc.wait(timeout=5)
     assert proc.returncode == 0
+
+
+def test_twin_backed_emulator_process_closes_on_the_object(trained_home):
+    """`activetouch emulate reflex-takktile --object sphere`: the fingers and pads are the
+    twin's, so the driver's close stops on the sphere and feels it."""
+    from activetouch.service.cli import main as cli  # noqa: F401  (the CLI forwards here)
+
+    sp, cp = free_udp_port(), free_udp_port()
+    argv = [sys.executable, "-m", "activetouch", "emulate", "reflex-takktile"]
+    argv += ["--state-to", f"127.0.0.1:{sp}", "--command-listen", f"127.0.0.1:{cp}"]
+    argv += ["--object", "sphere", "--data", str(trained_home)]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    try:
+        assert "reflex-takktile emulator" in proc.stdout.readline()
+        hand = ReflexTakktileHand(
+            driver_config(sp, cp, motor_zero_rad=ZERO, encoder_zero_rad=[0.0] * 3)
+        )
+        hand.connect()
+        try:
+            g = hand.guarded_close()
+            assert hand.last_close_reasons == ("contact",) * 3
+            # Every finger stopped on its pads; the final reading feels the sphere on two or
+            # three of them (the twin's own close from above feels it on fingers 0 and 1).
+            assert len({int(i) // 9 for i in g.sensor_ids if i < 27}) >= 2
+            assert g.n_contacts >= 3
+            hand.open()
+        finally:
+            hand.disconnect()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    assert proc.returncode == 0
+    bad = subprocess.run(
+        [*argv[:5], "--wrist", "0", "0", "0", "0", "0", "0", "1"], capture_output=True, text=True
+    )
+    assert bad.returncode != 0 and "give --object too" in bad.stderr
+    assert "Traceback" not in bad.stderr

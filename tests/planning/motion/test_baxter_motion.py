@@ -47,7 +47,7 @@ def test_move_reaches_the_pose_and_trajectory_is_clean(motion, baxter):
         assert abs(abs(got.quat @ goal.quat) - 1) < 1e-6
         # Limits and a dense re-check of what was executed (object ignored: the grasp touches).
         assert not baxter.limits(1.5).violations(baxter.joint_names, traj.positions)
-        acc = traj.meta["accelerations"]
+        acc = traj.accelerations
         assert np.all(np.abs(acc) <= 1.5 + 1e-6)
         t = np.arange(0, traj.times[-1], 0.001)
         qs = np.array([np.interp(t, traj.times, traj.positions[:, j]) for j in range(7)]).T
