@@ -12,9 +12,10 @@ recorded as skipped without moving, and the count is logged and returned (`Colle
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +42,8 @@ class CollectStats:
     # reaches (None: the wrist cannot tell; every pose was tried).
     reachable: int | None = None
     checked: int = 0
+    # Moves that failed at poses the wrist had said it reaches (or could not tell), by reason.
+    failed: dict[str, int] = field(default_factory=dict)
 
 
 def _skipped(dataset: Dataset, name: str) -> set[int]:
@@ -110,9 +113,12 @@ def collect_object(
         hand.preshape(float(grid.preshapes[i]))
         try:
             wrist.move_to(pose)
-        except UnreachableError:
+        except UnreachableError as e:
             skipped.append(pid)
             stats.skipped += 1
+            why = failure_kind(str(e))
+            stats.failed[why] = stats.failed.get(why, 0) + 1
+            log.debug("%s: pose %d not reached: %s", name, pid, e)
         else:
             grasp = hand.guarded_close()
             if support_z is not None:
@@ -128,6 +134,11 @@ def collect_object(
         flush()  # an empty grid still registers the object
     stats.seconds = time.perf_counter() - t0
     return stats
+
+
+def failure_kind(message: str) -> str:
+    """A failed move's reason without its numbers (times, depths, counts), to count by kind."""
+    return re.sub(r"[-+]?\d+(\.\d+)?", "#", message)[:120]
 
 
 def _out_of_reach(

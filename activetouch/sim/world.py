@@ -466,14 +466,17 @@ class SimWorld:
             low = min(low, z0)
         return low
 
-    def collision_reason(self) -> str | None:
+    def collision_reason(self, below_table: bool = True) -> str | None:
         """Why the hand cannot be where it is (None if it may): below the table top where the
         table is, or overlapping the table or the object deeper than the configured
-        tolerance."""
+        tolerance. The first test (links' bounding boxes: conservative for tilted links) is
+        for a hand that may teleport under the table; a hand that moves in small steps, as on
+        an arm, cannot get there without touching it first: `below_table=False` skips it."""
         tol = self.cfg.wrist_penetration_tol_m
-        low = self.hand_min_z(over_table=True) - self.workcell.table_top_z
-        if low < -tol:
-            return f"the hand reaches {-low * 1000:.1f} mm below the table top"
+        if below_table:
+            low = self.hand_min_z(over_table=True) - self.workcell.table_top_z
+            if low < -tol:
+                return f"the hand reaches {-low * 1000:.1f} mm below the table top"
         self.flush_contacts()
         contacts = self.hand_contacts()
         if len(contacts) and contacts.depth.max() > tol:

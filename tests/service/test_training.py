@@ -122,9 +122,10 @@ class ReachingWrist:
     """The twin's wrist with a `reachable()` (as Baxter's motion layer has): poses whose index
     in the asked array is in `out` are unreachable; records the asks and the moves."""
 
-    def __init__(self, wrist, out_ids, grid):
+    def __init__(self, wrist, out_ids, grid, fail_ids=()):
         self.wrist, self.grid = wrist, grid
         self.out_ids = set(out_ids)
+        self.fail_ids = set(fail_ids)  # said reachable, then the move fails
         self.asked: list[int] = []
         self.moved: list = []
 
@@ -140,7 +141,12 @@ class ReachingWrist:
         return int(self.grid.pose_ids[i])
 
     def move_to(self, pose) -> None:
-        self.moved.append(self._id(pose.as_array()))
+        from activetouch.errors import UnreachableError
+
+        pid = self._id(pose.as_array())
+        self.moved.append(pid)
+        if pid in self.fail_ids:
+            raise UnreachableError(f"arm trajectory blocked at t = {pid / 7:.3f} s: the table")
         self.wrist.move_to(pose)
 
 
@@ -152,10 +158,14 @@ def test_collection_skips_the_poses_the_arm_cannot_reach_without_moving(tmp_path
     grid = object_grids({"sphere": spec.extents}, cfg.grid)["sphere"]
     ds = Dataset.create_or_open(tmp_path / "ds", dataset_meta(cfg))
     out = {int(p) for p in grid.pose_ids[::3]}
+    fail = {int(p) for p in grid.pose_ids[1::3][:2]}
     with open_twin(spec, cfg.sim) as twin:
-        wrist = ReachingWrist(twin.wrist, out, grid)
+        wrist = ReachingWrist(twin.wrist, out, grid, fail)
         stats = collect_object(twin.hand, wrist, ds, "sphere", grid, batch=4)  # type: ignore[arg-type]
     assert wrist.asked == [len(grid)]  # once, for every pending pose
+    # Moves that failed after the arm accepted the pose: counted by kind, numbers left out.
+    assert stats.failed["arm trajectory blocked at t = # s: the table"] == len(fail)
+    assert sum(stats.failed.values()) == stats.skipped - len(out)  # the twin's own too
     assert stats.checked == len(grid) and stats.reachable == len(grid) - len(out)
     assert not set(wrist.moved) & out and len(wrist.moved) == len(grid) - len(out)
     skipped = set(Dataset.open(tmp_path / "ds").attrs("sphere")[SKIPPED_ATTR])
@@ -177,6 +187,7 @@ def test_train_prints_how_many_grid_poses_the_arm_reaches(tmp_path, capsys, monk
     def collect_with_an_arm(*args, **kwargs):  # as a collection with reachable() reports it
         stats = real(*args, **kwargs)
         stats[0].reachable, stats[0].checked = 5, 9
+        stats[0].failed = {"no path within # s": 2}
         return stats
 
     monkeypatch.setattr(training, "collect", collect_with_an_arm)
@@ -185,3 +196,5 @@ def test_train_prints_how_many_grid_poses_the_arm_reaches(tmp_path, capsys, monk
     out = capsys.readouterr().out
     assert "sphere: the arm reaches 5 of the 9 grid poses checked" in out
     assert "cup: the arm reaches" not in out
+    assert "sphere: 2 moves failed (most: 2 x no path within # s)" in out
+    assert "arm grasped at" in out and "138 actions of 1063" in out

@@ -203,6 +203,18 @@ def test_move_wrist_into_the_table_raises_and_leaves_the_hand(world: SimWorld) -
     twin_wrist(arm).move_to(Pose([0.0, 0.0, 0.0896 + 0.0074 + 0.0005], TOP))
 
 
+def test_below_the_table_test_is_for_teleports_only(world: SimWorld) -> None:
+    # A hand teleported wholly under the table touches nothing there: only the bounding-box
+    # test sees it. An arm moving in small steps (below_table=False) relies on contacts,
+    # which stay exact: the pad 2 cm into the table is refused either way.
+    assert world.check_hand_pose(Pose([0.0, 0.0, -0.3], TOP)) is not None
+    world.set_wrist(Pose([0.0, 0.0, -0.3], TOP))
+    assert "below the table" in world.collision_reason()
+    assert world.collision_reason(below_table=False) is None
+    world.set_wrist(Pose([0.0, 0.0, 0.0896 - 0.02], TOP))
+    assert "penetrates the table" in world.collision_reason(below_table=False)
+
+
 def test_move_wrist_into_the_object_raises(world: SimWorld) -> None:
     world.place_primitive("box", (0.08, 0.08, 0.1))
     arm = SimArm(world)

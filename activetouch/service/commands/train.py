@@ -107,6 +107,13 @@ def train(
                 f"{s.name}: the arm reaches {s.reachable} of the {s.checked} grid poses checked",
                 highlight=False,
             )
+    for s in stats:
+        if s.failed:  # moves to poses the wrist had accepted that then failed
+            why, n = max(s.failed.items(), key=lambda kv: kv[1])
+            console.print(
+                f"{s.name}: {sum(s.failed.values())} moves failed (most: {n} x {why})",
+                highlight=False,
+            )
     for line in advice(list(shares.values()), cfg):
         console.print(f"[yellow]warning:[/] {line}", highlight=False, soft_wrap=True)
     arm = any(s.reachable is not None for s in stats)
