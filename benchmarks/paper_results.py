@@ -223,9 +223,22 @@ def write_readme(args: argparse.Namespace, out: Path) -> None:
         "![distance to the true class, simulated objects](sim/distance_vs_moves.png)",
         "",
         READING,
+        "",
+        OTHER_RESULTS,
     ]
     (out / "README.md").write_text("\n".join(lines))
     print(f"wrote {out / 'README.md'}")
+
+
+# Results made by other scripts, each with its own README in its folder.
+OTHER_RESULTS = """## Elsewhere in this folder
+
+- [baxter/](baxter/README.md): the Baxter twin (`arm.type=twin-baxter`, trained on the poses
+  Baxter reaches): tree, greedy and random in grasps and in robot seconds to first correct,
+  with lam 0 and with lam 0.5 over the arm's travel time (`benchmarks/baxter_lambda.py`).
+- [sf/](sf/README.md): the ReFlex SF's contacts (one per stalled finger) against the
+  TakkTile's on the paper's 7 objects (`benchmarks/sf_contacts.py`).
+- The hard 33-object library, placement and sensor errors: docs/benchmark.md."""
 
 
 def granularity_rows(label: str, doc: dict) -> list[str]:

@@ -138,7 +138,8 @@ def evaluate(
         console.print(
             f"{p:>7}: {s['objects_final_correct_majority']}/{len(objects)} objects correct at the "
             f"end, median moves to first correct {s['median_first_correct']}, "
-            f"mean {s['mean_first_correct_capped']:.2f}"
+            f"mean {s['mean_first_correct_capped']:.2f}; robot seconds to first correct, mean "
+            f"{s['mean_robot_s_to_first_correct']:.1f}"
         )
     console.print(f"{len(jobs)} runs in {summary['seconds']:.0f} s; report: {report}")
     return summary
