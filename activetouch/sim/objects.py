@@ -812,6 +812,9 @@ def load_mesh(path: Path, scale: float = 1.0):
             raise DataError(f"{path}: mesh {mesh_path.name} is not OBJ or STL")
         if mesh_path.stat().st_size == 0:
             raise DataError(f"{mesh_path}: empty file")
+    # Before reading: a reader may choke on a cut file with an unrelated message, or keep
+    # what it could parse of it and look whole.
+    _check_not_truncated(mesh_path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -820,7 +823,6 @@ def load_mesh(path: Path, scale: float = 1.0):
         raise DataError(f"{mesh_path}: cannot read mesh ({type(e).__name__}: {e})") from e
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0 or len(mesh.vertices) < 4:
         raise DataError(f"{mesh_path}: no triangles found (malformed or empty mesh)")
-    _check_not_truncated(mesh_path)  # what a reader kept of a cut file looks whole
     v = np.asarray(mesh.vertices, dtype=np.float64)
     if not np.all(np.isfinite(v)):
         raise DataError(f"{mesh_path}: vertices are not finite numbers")
@@ -861,7 +863,10 @@ def _check_not_truncated(path: Path) -> None:
                     if head.lstrip("-").isdigit():
                         max_index = max(max_index, int(head))
         if max_index > n_vertices:
-            raise DataError(f"{cut} (a face uses vertex {max_index} of {n_vertices})")
+            raise DataError(
+                f"{path}: a face uses vertex {max_index} of {n_vertices} (the file is truncated "
+                "or malformed)"
+            )
         last = data.rstrip(b"\r\n").rsplit(b"\n", 1)[-1].split()
         if last[:1] in ([b"v"], [b"f"]) and len(last) < 4:
             raise DataError(f"{cut} (its last line is incomplete: {b' '.join(last).decode()!r})")

@@ -50,9 +50,10 @@ def _ascii_stl(n_facets: int, end: bool) -> bytes:
     [
         # Read as a smaller mesh by the reader, before this check: now refused.
         ("cut_line.obj", CUBE_OBJ[: len(CUBE_OBJ) - 4], "last line is incomplete"),
-        # Refused by the reader already (a different line, the same one-line DataError).
-        ("cut_ascii.stl", _ascii_stl(9, end=False), ""),
-        ("cut.stl", _binary_stl(12, 7), ""),
+        # Checked before any reader sees them (trimesh read the binary one as text and failed
+        # on a missing text-encoding module: a one-line DataError, but not the reason).
+        ("cut_ascii.stl", _ascii_stl(9, end=False), "ASCII STL without 'endsolid'"),
+        ("cut.stl", _binary_stl(12, 7), "12 triangles announced, 7 present"),
     ],
 )
 def test_a_truncated_mesh_is_refused(tmp_path: Path, name: str, content, why: str) -> None:
