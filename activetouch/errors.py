@@ -17,6 +17,15 @@ class UnreachableError(ActiveTouchError):
     """The arm cannot reach a requested wrist pose (joint limits, collision, IK failure)."""
 
 
+class MotionBlockedError(UnreachableError):
+    """A motion stopped part way at a contact; `executed_s` trajectory seconds were done (robot
+    time spent, though the pose was not reached)."""
+
+    def __init__(self, message: str, executed_s: float = 0.0) -> None:
+        super().__init__(message)
+        self.executed_s = float(executed_s)
+
+
 class PlanningError(ActiveTouchError):
     """The planner cannot produce a plan, e.g. no unvisited pose remains."""
 

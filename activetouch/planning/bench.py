@@ -134,6 +134,7 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
     t0 = time.perf_counter()
     pr = make_problem(args.poses, args.classes, args.seed)
     m = pr.model
+    build_rss = peak_rss_bytes()
     deg = np.diff(m.edge_ptr)
     console.print(
         f"synthetic model: {m.n_poses} poses, {int(deg.max())} actions per node "
@@ -180,7 +181,13 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
             "bins": m.n_bins,
             "tally_rows": len(m.tally_key),
             "marginal_rows": len(m.marg_key),
+            # What a robot PC holds to plan: the model's arrays (its edges grow as poses^2).
+            "array_bytes": model_bytes(m),
         },
+        # Process peaks: after building the synthetic model (a training-time cost on a real
+        # library), and at the end, planning included.
+        "peak_rss_bytes_after_build": build_rss,
+        "peak_rss_bytes": peak_rss_bytes(),
         "objective": args.objective,
         "notes": "numba compile time excluded (warm-up); one core; synthetic model seed "
         f"{args.seed}",
@@ -203,6 +210,19 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
     return out
 
 
+def model_bytes(model: object) -> int:
+    """Bytes of the numpy arrays an observation model holds."""
+    return int(sum(v.nbytes for v in vars(model).values() if isinstance(v, np.ndarray)))
+
+
+def peak_rss_bytes() -> int:
+    """This process's peak resident memory so far (Linux reports KiB, macOS bytes)."""
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)
+
+
 def print_results(out: dict[str, Any], console: Console) -> None:
     table = Table(title="MCTS planner speed (synthetic model, one core)")
     for col in ("T", "acts", "K", "sims/s", "100-sim tree", "tree arrays", "paper", "speed-up"):
@@ -223,6 +243,12 @@ def print_results(out: dict[str, Any], console: Console) -> None:
         f"acts: actions per node; K: classes; sims/s inside "
         f"{out['results'][0]['sims_per_tree']}-simulation trees; 100-sim tree: one whole search "
         "of 100 simulations; paper: Sec. VI-C. Numba compilation excluded (warmed up first)."
+    )
+    mb = 1024 * 1024
+    console.print(
+        f"memory: model arrays {out['model']['array_bytes'] / mb:,.0f} MiB; process peak "
+        f"{out['peak_rss_bytes_after_build'] / mb:,.0f} MiB after building the synthetic model, "
+        f"{out['peak_rss_bytes'] / mb:,.0f} MiB at the end"
     )
     src = ", ".join(
         f"T={r['horizon']}: "

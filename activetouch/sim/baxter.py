@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from activetouch.devices import ArmConfig, DeviceContext
-from activetouch.errors import ActiveTouchError, ConfigError, UnreachableError
+from activetouch.errors import ActiveTouchError, ConfigError, MotionBlockedError, UnreachableError
 from activetouch.interfaces import (
     Arm,
     JointLimits,
@@ -418,6 +418,7 @@ class TwinBaxterArm(Arm):
         step_m = cfg.motion.check_step_m
         wall0 = time.monotonic()
         prev_q, prev_x = self._q, self.hand_xyz(self._q)
+        done = float(times[0])  # trajectory time of the last free sample
         try:
             for t, qk in resample(times, q, cfg.sample_dt, cfg.motion.check_step_rad):
                 if cfg.time_scale > 0:
@@ -430,9 +431,13 @@ class TwinBaxterArm(Arm):
                     reason = self.collision_reason(qs)
                     self.samples_checked += 1
                     if reason is not None:
-                        raise UnreachableError(f"arm trajectory blocked at t = {t:.3f} s: {reason}")
+                        raise MotionBlockedError(
+                            f"arm trajectory blocked at t = {t:.3f} s: {reason}",
+                            done - float(times[0]),
+                        )
                     self._q = qs
                 prev_q, prev_x = qk, x
+                done = t
         finally:
             self.sync_hand()  # the hand where the arm stopped (the last free sample)
 

@@ -5,6 +5,7 @@ Baxter's hand, and a whole recognition on ``hand.type=twin`` + ``arm.type=twin-b
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 import threading
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 from activetouch.config import WorkcellConfig, load_config
-from activetouch.errors import ConfigError, StoppedError, UnreachableError
+from activetouch.errors import ConfigError, MotionBlockedError, StoppedError, UnreachableError
 from activetouch.interfaces import JointTrajectory, Pose
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -133,8 +134,11 @@ def test_a_contact_stops_the_arm_at_the_last_free_sample(twin, baxter) -> None:
     twin.execute(line(q0, above, 2.0, twin.joint_names))
     # Straight down into the box: the hand meets it (the world's check, not the planner's).
     into = solve(baxter, [0.6, 0.25, -0.1])
-    with pytest.raises(UnreachableError, match=r"blocked at t = .*object"):
+    with pytest.raises(MotionBlockedError, match=r"blocked at t = .*object") as blocked:
         twin.execute(line(above, into, 2.0, twin.joint_names))
+    # The trajectory time it moved before the contact (robot time spent, the pose not reached).
+    at = float(re.search(r"t = ([0-9.]+) s", str(blocked.value)).group(1))
+    assert 0.0 < blocked.value.executed_s <= at <= 2.0
     stopped = twin.joint_state().position
     assert not np.allclose(stopped, into, atol=1e-3) and not np.allclose(stopped, above)
     assert twin.collision_reason(stopped) is None

@@ -54,7 +54,8 @@ class WristMotion(abc.ABC):
     Robot time, counted by implementations that move something (readers take differences,
     e.g. around one recognition; these class defaults stay 0 for wrists that count nothing):
     `robot_seconds` is the sum of the durations of executed trajectories (trajectory time,
-    as the robot takes it; a motion that raised adds nothing), `planning_seconds` the wall
+    as the robot takes it; a motion stopped at a contact, `MotionBlockedError`, adds the part it
+    moved, any other failure nothing), `planning_seconds` the wall
     time spent planning them (failed plans included), `moves` the completed motions, and
     `last_motion_s` / `last_planning_s` the same for the last `move_to` alone."""
 

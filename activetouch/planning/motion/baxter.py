@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from activetouch.errors import UnreachableError
+from activetouch.errors import MotionBlockedError, UnreachableError
 from activetouch.interfaces import Arm, JointTrajectory, Pose
 from activetouch.planning.motion.base import Placement, WristMotion
 from activetouch.planning.motion.collision import CollisionScene
@@ -414,7 +414,11 @@ class BaxterWristMotion(WristMotion):
         finally:
             self.last_planning_s = time.perf_counter() - t0
             self.planning_seconds += self.last_planning_s
-        self.arm.execute(plan.trajectory)
+        try:
+            self.arm.execute(plan.trajectory)
+        except MotionBlockedError as e:  # the arm moved until the contact: robot time spent
+            self.robot_seconds += e.executed_s
+            raise
         self.last_motion_s = plan.duration_s
         self.robot_seconds += plan.duration_s
         self.moves += 1

@@ -139,3 +139,16 @@ def test_travel_times_estimate_the_planned_moves(motion):
         else:  # a path round something takes longer than the straight estimate
             assert plan.duration_s >= est[i, j] * 0.999
     assert straight >= 1
+
+
+def test_a_blocked_motion_counts_the_time_it_moved(motion, monkeypatch):
+    from activetouch.errors import MotionBlockedError
+
+    def blocked(trajectory):  # as the Baxter twin stops at a contact 1.25 s in
+        raise MotionBlockedError("arm trajectory blocked at t = 1.260 s: contact", 1.25)
+
+    monkeypatch.setattr(motion.arm, "execute", blocked)
+    with pytest.raises(UnreachableError, match="blocked"):
+        motion.move_to(grasp([0, 0, 1]))
+    assert motion.robot_seconds == pytest.approx(1.25) and motion.moves == 0
+    assert motion.last_motion_s == 0.0
