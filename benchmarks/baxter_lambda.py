@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from activetouch.service.cli import main as cli
-from activetouch.service.evaluation import paired_stats
+from activetouch.service.evaluation import moves_capped, paired_stats, robot_s_capped
 
 BAXTER = ["--set", "arm.type=twin-baxter"]
 # name -> (what it is, policies, settings)
@@ -50,16 +50,6 @@ def load_runs(out: Path) -> dict[str, list[dict[str, Any]]]:
     return {k: json.loads((out / k / "results.json").read_text())["runs"] for k in STUDIES}
 
 
-def robot_s(r: dict[str, Any]) -> float:
-    t = r.get("robot_s_to_first_correct")
-    return float(r["total_s"] if t is None else t)
-
-
-def grasps(r: dict[str, Any], budget: int) -> int:
-    m = r["moves_to_first_correct"]
-    return budget + 1 if m is None else int(m)
-
-
 def policy_rows(runs: list[dict[str, Any]], budget: int) -> list[str]:
     rows = []
     for p in dict.fromkeys(r["policy"] for r in runs):
@@ -68,9 +58,9 @@ def policy_rows(runs: list[dict[str, Any]], budget: int) -> list[str]:
         rows.append(
             f"| {p} | {np.mean([r['final_correct'] for r in rs]):.0%} | "
             f"{sum(r['moves_to_first_correct'] is None for r in rs)} | "
-            f"{np.mean([grasps(r, budget) for r in rs]):.2f} | "
-            f"{np.mean([robot_s(r) for r in rs]):.1f} | "
-            f"{np.median([robot_s(r) for r in rs]):.1f} | "
+            f"{np.mean([moves_capped(r, budget) for r in rs]):.2f} | "
+            f"{np.mean([robot_s_capped(r) for r in rs]):.1f} | "
+            f"{np.median([robot_s_capped(r) for r in rs]):.1f} | "
             f"{sum(r['motion_s'] for r in rs) / max(moves, 1):.2f} | "
             f"{np.mean([r['total_s'] for r in rs]):.1f} |"
         )
@@ -86,8 +76,10 @@ def paired_row(
     if not pairs:
         return None
     rng = np.random.default_rng(0)
-    g = paired_stats(np.array([grasps(y, budget) - grasps(x, budget) for x, y in pairs]), rng)
-    s = paired_stats(np.array([robot_s(y) - robot_s(x) for x, y in pairs]), rng)
+    g = paired_stats(
+        np.array([moves_capped(y, budget) - moves_capped(x, budget) for x, y in pairs]), rng
+    )
+    s = paired_stats(np.array([robot_s_capped(y) - robot_s_capped(x) for x, y in pairs]), rng)
     return (
         f"| {name} | {len(pairs)} | {g['mean']:+.2f} [{g['ci95'][0]:+.2f}, {g['ci95'][1]:+.2f}] "
         f"| {g['sign_p']:.3f} | {s['mean']:+.1f} [{s['ci95'][0]:+.1f}, {s['ci95'][1]:+.1f}] | "

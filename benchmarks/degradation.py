@@ -23,7 +23,14 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.service.evaluation import Job, make_jobs, paired_stats, parse_seeds, run_all
+from activetouch.service.evaluation import (
+    Job,
+    make_jobs,
+    moves_capped,
+    paired_stats,
+    parse_seeds,
+    run_all,
+)
 from activetouch.service.recognize import load_trained, model_path
 
 # name -> (what it is, settings). The placement levels are the bounds (2 cm, 15 deg)
@@ -58,11 +65,6 @@ LEVELS: dict[str, tuple[str, list[str]]] = {
 }
 
 
-def capped(r: dict[str, Any], budget: int) -> int:
-    m = r["moves_to_first_correct"]
-    return budget + 1 if m is None else int(m)
-
-
 def degradation_rows(
     runs: list[dict[str, Any]], levels: list[str], policies: list[str], budget: int
 ) -> list[dict[str, Any]]:
@@ -77,11 +79,13 @@ def degradation_rows(
             base = [by.get(("none", p, r["object"], r["seed"])) for r in rs]
             pairs = [(r, b) for r, b in zip(rs, base, strict=True) if b is not None]
             # Positive: the errors cost grasps (errors - nominal).
-            d = np.array([capped(r, budget) - capped(b, budget) for r, b in pairs], dtype=float)
+            d = np.array(
+                [moves_capped(r, budget) - moves_capped(b, budget) for r, b in pairs], dtype=float
+            )
             acc_d = np.array([float(r["final_correct"]) - b["final_correct"] for r, b in pairs])
             st = paired_stats(d, np.random.default_rng(0))
             acc_st = paired_stats(acc_d, np.random.default_rng(0))
-            moves = np.array([capped(r, budget) for r in rs], dtype=float)
+            moves = np.array([moves_capped(r, budget) for r in rs], dtype=float)
             rows.append(
                 {
                     "level": level,

@@ -25,7 +25,14 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.service.evaluation import Job, make_jobs, paired_stats, parse_seeds, run_all
+from activetouch.service.evaluation import (
+    Job,
+    make_jobs,
+    moves_capped,
+    paired_stats,
+    parse_seeds,
+    run_all,
+)
 from activetouch.service.recognize import load_trained, model_path
 
 DEFAULT_ARMS = "tree,greedy,random,tree:planner.objective=info_gain"
@@ -43,11 +50,6 @@ def family(name: str) -> str:
     return parts[1] if name.startswith("h_") and len(parts) > 2 else name
 
 
-def capped(r: dict[str, Any], budget: int) -> int:
-    m = r["moves_to_first_correct"]
-    return budget + 1 if m is None else int(m)
-
-
 def arm_rows(runs: list[dict[str, Any]], arms: Iterable[str], budget: int) -> list[dict[str, Any]]:
     """Per arm: final accuracy, worst object's, mean / median moves to first correct."""
     rows = []
@@ -60,7 +62,7 @@ def arm_rows(runs: list[dict[str, Any]], arms: Iterable[str], budget: int) -> li
             o: np.mean([r["final_correct"] for r in rs if r["object"] == o]) for o in objects
         }
         worst = min(per_obj, key=per_obj.get)
-        moves = np.array([capped(r, budget) for r in rs], dtype=float)
+        moves = np.array([moves_capped(r, budget) for r in rs], dtype=float)
         rows.append(
             {
                 "arm": a,
@@ -85,7 +87,7 @@ def pair_rows(
     """Paired by (object, seed): baseline - arm moves (positive: the arm needs fewer)."""
     table: dict[str, dict[tuple[str, int], int]] = {}
     for r in runs:
-        table.setdefault(r["arm"], {})[(r["object"], r["seed"])] = capped(r, budget)
+        table.setdefault(r["arm"], {})[(r["object"], r["seed"])] = moves_capped(r, budget)
     out = []
     for arm, base in pairs:
         if arm not in table or base not in table:
@@ -137,7 +139,7 @@ def print_tables(runs: list[dict[str, Any]], arms: list[str], budget: int) -> No
         cells = []
         for a in arms:
             rs = [r for r in runs if r["arm"] == a and family(r["object"]) == f]
-            mv = np.mean([capped(r, budget) for r in rs]) if rs else float("nan")
+            mv = np.mean([moves_capped(r, budget) for r in rs]) if rs else float("nan")
             acc = np.mean([r["final_correct"] for r in rs]) if rs else float("nan")
             cells.append(f"{acc:.0%} / {mv:.2f}")
         print(f"| {f} | " + " | ".join(cells) + " |")

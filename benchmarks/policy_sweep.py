@@ -37,6 +37,7 @@ from activetouch.config import load_config
 from activetouch.service.evaluation import (
     Job,
     make_jobs,
+    moves_capped,
     paired_stats,
     parse_seeds,
     run_all,
@@ -64,8 +65,7 @@ def moves_table(
     """{arm label: {(object, seed): capped moves to first correct}}."""
     out: dict[str, dict[tuple[str, int], int]] = {a.label: {} for a in arms}
     for r in runs:
-        m = r["moves_to_first_correct"]
-        out[r["arm"]][(r["object"], r["seed"])] = budget + 1 if m is None else int(m)
+        out[r["arm"]][(r["object"], r["seed"])] = moves_capped(r, budget)
     return out
 
 

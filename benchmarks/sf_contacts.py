@@ -16,13 +16,12 @@ import os
 import shlex
 import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from activetouch import paths
 from activetouch.service.cli import main as cli
-from activetouch.service.evaluation import paired_stats
+from activetouch.service.evaluation import moves_capped, paired_stats
 
 HANDS = {
     "takktile": ("ReFlex TakkTile: 38 pressure sensors", []),
@@ -34,11 +33,6 @@ def run(argv: list[str]) -> None:
     print("$ python -m activetouch " + shlex.join(argv), flush=True)
     if cli(argv) != 0:
         raise SystemExit(f"failed: {argv}")
-
-
-def capped(r: dict[str, Any], budget: int) -> int:
-    m = r["moves_to_first_correct"]
-    return budget + 1 if m is None else int(m)
 
 
 def write_readme(args: argparse.Namespace, out: Path) -> None:
@@ -66,7 +60,7 @@ def write_readme(args: argparse.Namespace, out: Path) -> None:
             rs = [r for r in docs[h]["runs"] if r["policy"] == p]
             lines.append(
                 f"| {what} | {p} | {np.mean([r['final_correct'] for r in rs]):.0%} | "
-                f"{np.mean([capped(r, budget) for r in rs]):.2f} | "
+                f"{np.mean([moves_capped(r, budget) for r in rs]):.2f} | "
                 f"{sum(r['moves_to_first_correct'] is None for r in rs)} | "
                 f"{np.mean([r['mean_contacts'] for r in rs]):.1f} |"
             )
@@ -86,7 +80,9 @@ def write_readme(args: argparse.Namespace, out: Path) -> None:
         )
     by = {(r["policy"], r["object"], r["seed"]): r for r in docs["takktile"]["runs"]}
     pairs = [(r, by[(r["policy"], r["object"], r["seed"])]) for r in docs["sf"]["runs"]]
-    d = np.array([capped(sf, budget) - capped(tt, budget) for sf, tt in pairs], dtype=float)
+    d = np.array(
+        [moves_capped(sf, budget) - moves_capped(tt, budget) for sf, tt in pairs], dtype=float
+    )
     st = paired_stats(d, np.random.default_rng(0))
     lines += [
         "",

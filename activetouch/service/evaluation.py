@@ -376,10 +376,8 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
                 if r["policy"] != "tree":
                     continue
                 o = by_key[(other, r["object"], r["seed"])]
-                a = r["moves_to_first_correct"] or max_moves + 1
-                b = o["moves_to_first_correct"] or max_moves + 1
-                diffs.append(b - a)
-                sdiffs.append(_robot_s_capped(o) - _robot_s_capped(r))
+                diffs.append(moves_capped(o, max_moves) - moves_capped(r, max_moves))
+                sdiffs.append(robot_s_capped(o) - robot_s_capped(r))
             d = np.asarray(diffs, dtype=float)
             # Fixed bootstrap seed: the same runs always give the same interval.
             st = paired_stats(d, np.random.default_rng(0))
@@ -411,14 +409,20 @@ def summarise(runs: list[dict[str, Any]], max_moves: int) -> dict[str, Any]:
     }
 
 
-def _robot_s_capped(run: dict[str, Any]) -> float:
+def moves_capped(run: dict[str, Any], budget: int) -> int:
+    """Grasps to first correct; a run never correct counts as budget + 1."""
+    m = run["moves_to_first_correct"]
+    return budget + 1 if m is None else int(m)
+
+
+def robot_s_capped(run: dict[str, Any]) -> float:
     """Robot seconds to first correct; a run never correct counts its whole robot time."""
     t = run.get("robot_s_to_first_correct")
     return float(run.get("total_s", 0.0) if t is None else t)
 
 
 def _mean_robot_s(runs: list[dict[str, Any]]) -> float:
-    return float(np.mean([_robot_s_capped(r) for r in runs])) if runs else float("nan")
+    return float(np.mean([robot_s_capped(r) for r in runs])) if runs else float("nan")
 
 
 def public_runs(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
