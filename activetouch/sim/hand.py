@@ -345,7 +345,7 @@ class SimHand(Hand):
             [f * SENSORS_PER_FINGER + self.cfg.stall_contact_site for f in stopped], dtype=int
         )
         finger = pressures[:N_FINGER_SENSORS].reshape(N_FINGERS, SENSORS_PER_FINGER)
-        load = np.array([max(float(finger[f].clip(0).sum()), 0.0) for f in stopped])
+        load = finger[stopped].clip(0).sum(axis=1)
         return Grasp(
             sensor_ids=ids,
             xyz=w.sensor_sites_hand()[ids].reshape(-1, 3),
