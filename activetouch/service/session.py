@@ -211,6 +211,15 @@ class RecognitionSession:
         )
         return out
 
+    def _clock(self, res: RecognitionResult, clock0: tuple[float, float] | None) -> None:
+        """Bring `res`'s robot time up to now: grasping, and the wrist's moving and motion
+        planning since `clock0` (left as they were if the wrist cannot tell)."""
+        res.grasp_s = self._grasp_s
+        now = motion_clock(self.wrist)
+        if clock0 is not None and now is not None:
+            res.motion_s = now[0] - clock0[0]
+            res.motion_planning_s = now[1] - clock0[1]
+
     def _travel_costs(self) -> None:
         """With ``planner.movement_cost = "travel_time"``: c_m of every model edge from the
         wrist's estimated move durations (`travel_times`, e.g. Baxter's), once per recognition."""
@@ -261,13 +270,8 @@ class RecognitionSession:
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
             res.contacts.append(hand_to_object(pose, grasp.xyz))
-            now = motion_clock(self.wrist)
-            moved, motion_planned = (
-                (now[0] - clock0[0], now[1] - clock0[1])
-                if now is not None and clock0 is not None
-                else (0.0, 0.0)
-            )
-            res.robot_s.append(moved + self._grasp_s + res.search_s + motion_planned)
+            self._clock(res, clock0)
+            res.robot_s.append(res.total_s)
             # Consecutive confident grasps agreeing on the same top class.
             if p[best] < self.cfg.confidence or not felt:
                 streak = 0
@@ -285,7 +289,7 @@ class RecognitionSession:
                         top=top_k(p, names) if felt else [],
                         skipped=res.skipped,
                         elapsed_s=time.perf_counter() - t0,
-                        motion_s=moved,
+                        motion_s=res.motion_s,
                     )
                 )
 
@@ -356,10 +360,6 @@ class RecognitionSession:
             p = np.asarray(res.probabilities[-1])
             res.label = res.labels[-1]
             res.probability = float(p.max()) if res.label != NO_LABEL else 0.0
-        res.grasp_s = self._grasp_s
-        clock1 = motion_clock(self.wrist)
-        if clock0 is not None and clock1 is not None:
-            res.motion_s = clock1[0] - clock0[0]
-            res.motion_planning_s = clock1[1] - clock0[1]
+        self._clock(res, clock0)
         res.elapsed_s = time.perf_counter() - t0
         return res
