@@ -89,8 +89,8 @@ def seed_numba(seed: int) -> None:
 
 
 @njit(cache=True)
-def _find_key(keys: np.ndarray, key: int) -> int:
-    """Index of `key` in the ascending array `keys`, or -1."""
+def _lower_bound(keys: np.ndarray, key: int) -> int:
+    """First index whose key is >= `key` (keys ascending)."""
     lo = 0
     hi = keys.shape[0]
     while lo < hi:
@@ -99,6 +99,13 @@ def _find_key(keys: np.ndarray, key: int) -> int:
             lo = mid + 1
         else:
             hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _find_key(keys: np.ndarray, key: int) -> int:
+    """Index of `key` in the ascending array `keys`, or -1."""
+    lo = _lower_bound(keys, key)
     if lo < keys.shape[0] and keys[lo] == key:
         return lo
     return -1
@@ -211,6 +218,18 @@ def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def _class_span(keys: np.ndarray, base: int, n_classes: int) -> tuple:
+    """[lo, hi) of the entries coded base + y (y < n_classes) in keys re-keyed by class
+    (`ObservationModel.rows_by_action`): the classes that have a row, in class order."""
+    lo = _lower_bound(keys, base)
+    hi = lo
+    end = base + n_classes
+    while hi < keys.shape[0] and keys[hi] < end:
+        hi += 1
+    return lo, hi
+
+
+@njit(cache=True)
 def _sample_outcome(
     m: tuple,
     kern: tuple,
@@ -218,7 +237,6 @@ def _sample_outcome(
     cell: int,
     hist: np.ndarray,
     S: np.ndarray,
-    rows: np.ndarray,
     counters: np.ndarray,
     per_class: bool,
 ) -> int:
@@ -228,26 +246,11 @@ def _sample_outcome(
     alone), renormalising p(y|h) over them. True: y is drawn from the full p(y|h); that class
     answers from its (a, cell) row, else its (a) row, else with nothing observed — so a class
     without data cannot make another class's observation look certain."""
-    (
-        _edge_ptr,
-        _edge_action,
-        _edge_target,
-        _edge_cost,
-        _out_cell,
-        _out_ptr,
-        _out_bin,
-        tally_key,
-        tally_ptr,
-        tally_out,
-        tally_cum,
-        marg_key,
-        marg_ptr,
-        marg_out,
-        marg_cum,
-        n_actions,
-        n_cells,
-    ) = m
-    n_classes = rows.shape[0]
+    tally_ptr, tally_out, tally_cum = m[8], m[9], m[10]
+    marg_ptr, marg_out, marg_cum = m[12], m[13], m[14]
+    n_cells = m[16]
+    tkey, trow, mkey, mrow = m[17], m[18], m[19], m[20]
+    n_classes = kern[7]
     if per_class:
         p = _proba_scores(kern, hist, S)
         u = np.random.random()
@@ -259,68 +262,53 @@ def _sample_outcome(
                 y = k
                 break
         if 0 <= cell < n_cells:
-            r = _find_key(tally_key, (y * n_actions + action) * n_cells + cell)
-            if r >= 0:
+            i = _find_key(tkey, (action * n_cells + cell) * n_classes + y)
+            if i >= 0:
                 counters[0] += 1
-                return _draw_in_row(tally_ptr, tally_out, tally_cum, r)
-        r = _find_key(marg_key, y * n_actions + action)
-        if r >= 0:
+                return _draw_in_row(tally_ptr, tally_out, tally_cum, trow[i])
+        i = _find_key(mkey, action * n_classes + y)
+        if i >= 0:
             counters[1] += 1
-            return _draw_in_row(marg_ptr, marg_out, marg_cum, r)
+            return _draw_in_row(marg_ptr, marg_out, marg_cum, mrow[i])
         counters[2] += 1
         return -1
-    found = 0
+    lo = 0
+    hi = 0
     use_marg = False
+    base = 0
     if 0 <= cell < n_cells:
-        for y in range(n_classes):
-            r = _find_key(tally_key, (y * n_actions + action) * n_cells + cell)
-            rows[y] = r
-            if r >= 0:
-                found += 1
-    if found == 0:
+        base = (action * n_cells + cell) * n_classes
+        lo, hi = _class_span(tkey, base, n_classes)
+    if hi == lo:
         use_marg = True
-        for y in range(n_classes):
-            r = _find_key(marg_key, y * n_actions + action)
-            rows[y] = r
-            if r >= 0:
-                found += 1
+        base = action * n_classes
+        lo, hi = _class_span(mkey, base, n_classes)
+    found = hi - lo
     if found == 0:
         counters[2] += 1
         return -1
     counters[1 if use_marg else 0] += 1
-    if found == 1:
-        ysel = 0
-        for y in range(n_classes):
-            if rows[y] >= 0:
-                ysel = y
-    else:
+    keys = mkey if use_marg else tkey
+    sel = lo
+    if found > 1:
         # p(y | h_t) only matters when several classes could have produced the observation.
         p = _proba_scores(kern, hist, S)
         total = 0.0
-        for y in range(n_classes):
-            if rows[y] >= 0:
-                total += p[y]
-        ysel = -1
+        for i in range(lo, hi):
+            total += p[keys[i] - base]
         if total > 0.0:
             u = np.random.random() * total
             acc = 0.0
-            for y in range(n_classes):
-                if rows[y] >= 0:
-                    acc += p[y]
-                    ysel = y
-                    if u < acc:
-                        break
+            for i in range(lo, hi):
+                acc += p[keys[i] - base]
+                sel = i
+                if u < acc:
+                    break
         else:  # every candidate class has zero probability: treat them alike
-            k = np.random.randint(0, found)
-            for y in range(n_classes):
-                if rows[y] >= 0:
-                    if k == 0:
-                        ysel = y
-                        break
-                    k -= 1
+            sel = lo + np.random.randint(0, found)
     if use_marg:
-        return _draw_in_row(marg_ptr, marg_out, marg_cum, rows[ysel])
-    return _draw_in_row(tally_ptr, tally_out, tally_cum, rows[ysel])
+        return _draw_in_row(marg_ptr, marg_out, marg_cum, mrow[sel])
+    return _draw_in_row(tally_ptr, tally_out, tally_cum, trow[sel])
 
 
 @njit(cache=True)
@@ -331,13 +319,12 @@ def _observe(
     cell: int,
     hist: np.ndarray,
     S: np.ndarray,
-    rows: np.ndarray,
     counters: np.ndarray,
     per_class: bool,
 ) -> tuple:
     """One simulated observation (Eq. 4) added to the histogram and its scores; returns the
     outcome (-1: nothing observed) and the cell it leaves (-1 then too)."""
-    o = _sample_outcome(m, kern, action, cell, hist, S, rows, counters, per_class)
+    o = _sample_outcome(m, kern, action, cell, hist, S, counters, per_class)
     if o < 0:
         return o, -1
     out_cell, out_ptr, out_bin = m[4], m[5], m[6]  # model_tuple's order
@@ -453,6 +440,14 @@ def _select(
 
 
 @njit(cache=True)
+def _edge_cost(edge_cost: np.ndarray, action_cost: np.ndarray, a: int, e: int) -> float:
+    """c_m of edge e (action a): per edge when given, else the action's (not stored per edge)."""
+    if edge_cost.shape[0] > 0:
+        return edge_cost[e]
+    return action_cost[a]
+
+
+@njit(cache=True)
 def _pmax(p: np.ndarray) -> float:
     best = 0.0
     for y in range(p.shape[0]):
@@ -537,6 +532,11 @@ def _run_simulations(
         _mc,
         _na,
         _nc,
+        _tk2,
+        _tr2,
+        _mk2,
+        _mr2,
+        action_cost,
     ) = m
     (
         node_pose,
@@ -551,8 +551,6 @@ def _run_simulations(
     ) = nodes
     rec_node, rec_edge, rec_n, rec_q, _rec_next, rec_child = recs
     np.random.seed(seed)
-    n_classes = kern[7]
-    rows = np.empty(n_classes, dtype=np.int64)
     M = kern[1].shape[0]
     S0 = np.empty(M + 2)
     _scores_init(kern, hist, S0)
@@ -598,8 +596,8 @@ def _run_simulations(
                 break
             e = rec_edge[rec]
             a = edge_action[e]
-            move += edge_cost[e]
-            o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
+            move += _edge_cost(edge_cost, action_cost, a, e)
+            o, cell = _observe(m, kern, a, cell, hist, S, counters, per_class)
             if per_step:
                 last = _step_unsure(kern, hist, S, o, last, objective)
                 unsure += last
@@ -636,8 +634,8 @@ def _run_simulations(
             if e < 0:
                 break
             a = edge_action[e]
-            move += edge_cost[e]
-            o, cell = _observe(m, kern, a, cell, hist, S, rows, counters, per_class)
+            move += _edge_cost(edge_cost, action_cost, a, e)
+            o, cell = _observe(m, kern, a, cell, hist, S, counters, per_class)
             if per_step:
                 last = _step_unsure(kern, hist, S, o, last, objective)
                 unsure += last
@@ -825,7 +823,15 @@ def kernel_tuple(kernel: ClassifierKernel, incremental: bool = True) -> tuple:
 
 
 def model_tuple(model: ObservationModel) -> tuple:
-    """The observation model as the argument tuple the compiled code takes."""
+    """The observation model as the argument tuple the compiled code takes (no copies of the
+    model's arrays when they already have the compiled code's dtypes)."""
+
+    def i32(a: np.ndarray) -> np.ndarray:
+        # One compiled variant for every model: edges in int32 (int64 ones, from models saved
+        # before, are converted; a model too large for int32 keeps its own).
+        if a.dtype == np.int64 and len(a) < 2**31 - 1 and (len(a) == 0 or a.max() < 2**31 - 1):
+            return np.ascontiguousarray(a, dtype=np.int32)
+        return np.ascontiguousarray(a)
 
     def i64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.int64)
@@ -833,11 +839,12 @@ def model_tuple(model: ObservationModel) -> tuple:
     def f64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float64)
 
+    tkey, trow, mkey, mrow = model.rows_by_action
     return (
         i64(model.edge_ptr),
-        i64(model.edge_action),
-        i64(model.edge_target),
-        f64(model.edge_cost),
+        i32(model.edge_action),
+        i32(model.edge_target),
+        f64(model.edge_cost),  # empty: the action's cost (last entry)
         i64(model.out_cell),
         i64(model.out_ptr),
         i64(model.out_bin),
@@ -851,6 +858,11 @@ def model_tuple(model: ObservationModel) -> tuple:
         f64(model.marg_cum),
         np.int64(model.n_actions),
         np.int64(model.n_cells),
+        tkey,
+        trow,
+        mkey,
+        mrow,
+        f64(model.action_cost),
     )
 
 
@@ -919,8 +931,8 @@ class TreeSearch:
     def set_edge_cost(self, cost: np.ndarray) -> None:
         """Replace the model's edge costs c_m (E,) for this search's later trees."""
         c = np.ascontiguousarray(cost, dtype=np.float64).reshape(-1)
-        if c.shape != self._m[3].shape:
-            raise ValueError(f"edge costs must be {self._m[3].shape}, got {c.shape}")
+        if c.shape != self._m[1].shape:
+            raise ValueError(f"edge costs must be {self._m[1].shape}, got {c.shape}")
         self._m = (*self._m[:3], c, *self._m[4:])
 
     def interrupt(self) -> None:

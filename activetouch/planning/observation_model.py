@@ -46,6 +46,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -59,10 +60,17 @@ GRANULARITIES = ("triangle", "grasp")
 ACTION_FRAMES = ("relative", "absolute")
 
 _I64 = np.int64
+# Edge arrays (E = P (P - 1) entries, 25 M at 5000 poses) are 4-byte when their values fit.
+_INT32_ARRAYS = frozenset({"edge_action", "edge_target"})
 
 
 def _empty_i64(*shape: int) -> np.ndarray:
     return np.zeros(shape or (0,), dtype=np.int64)
+
+
+def edge_index_dtype(n_edges: int, n_values: int) -> type:
+    """int32 for edge arrays whose count and values fit in it, else int64."""
+    return np.int32 if max(n_edges, n_values) < 2**31 - 1 else np.int64
 
 
 @dataclass(frozen=True)
@@ -79,8 +87,8 @@ class ObservationModel:
     action_cost: np.ndarray  # (A,) float64
     # Transitions from each pose (CSR over poses): action taken and pose reached.
     edge_ptr: np.ndarray  # (P + 1,) int64
-    edge_action: np.ndarray  # (E,) int64
-    edge_target: np.ndarray  # (E,) int64
+    edge_action: np.ndarray  # (E,) int32 (int64 in models saved before, or beyond 2^31)
+    edge_target: np.ndarray  # (E,) int32 (idem)
     # Outcomes (O): the cell each leaves behind and the histogram bins it adds (CSR).
     out_cell: np.ndarray  # (O,) int64
     out_ptr: np.ndarray  # (O + 1,) int64
@@ -103,17 +111,12 @@ class ObservationModel:
     quaternion_cell: float = 0.05
     triangle_cell: float = 0.08
     max_translation: float = 0.0  # m, the largest edge translation: c_m's normaliser
-    # Movement cost c_m of each edge (E,), what the search adds per step. With relative actions
-    # it is action_cost[edge_action] (the paper's c_m(a)); with absolute actions the cost is
-    # that of the move p -> q, which the action (q alone) does not fix. Left empty, it is
-    # derived from action_cost, so hand-built models and models saved before it stay valid.
-    edge_cost: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (E,) float64
+    # Movement cost c_m of each edge (E,), what the search adds per step, when it is not the
+    # action's: with absolute actions the cost is that of the move p -> q, which the action
+    # (q alone) does not fix. Empty: c_m(edge) = action_cost[edge_action] (the paper's c_m(a)
+    # with relative actions), which is not stored per edge (200 MB at 5000 poses).
+    edge_cost: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (E,) or (0,) float64
     action_frame: str = "relative"  # "relative" (the paper) | "absolute", see the builder
-
-    def __post_init__(self) -> None:
-        ea, ac = np.asarray(self.edge_action), np.asarray(self.action_cost)
-        if len(self.edge_cost) == 0 and len(ea) and ea.min() >= 0 and ea.max() < len(ac):
-            object.__setattr__(self, "edge_cost", ac[ea].astype(np.float64))
 
     @property
     def n_classes(self) -> int:
@@ -130,6 +133,21 @@ class ObservationModel:
     @property
     def n_outcomes(self) -> int:
         return len(self.out_cell)
+
+    def edge_costs(self) -> np.ndarray:
+        """(E,) float64 c_m of every edge: `edge_cost` if stored, else its action's cost."""
+        if len(self.edge_cost):
+            return self.edge_cost
+        return np.asarray(self.action_cost, dtype=np.float64)[self.edge_action]
+
+    @cached_property
+    def rows_by_action(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The tally and marginal rows re-keyed so that one action's classes sit together:
+        (tally codes (a C + z) K + y ascending, their rows, marginal codes a K + y ascending,
+        their rows). Eq. 4 asks every class for (a, z) at once: with these it is one binary
+        search and a short scan instead of K searches (cached; not saved with the model)."""
+        K, A, C = self.n_classes, self.n_actions, self.n_cells
+        return (*_rekey_by_class(self.tally_key, A * C, K), *_rekey_by_class(self.marg_key, A, K))
 
     # --- queries ------------------------------------------------------------------------------
 
@@ -220,14 +238,13 @@ class ObservationModel:
             "tally_ptr": (len(self.tally_key) + 1,),
             "marg_ptr": (len(self.marg_key) + 1,),
             "cell_key": (C, 3),
-            "edge_cost": (len(self.edge_action),),
         }
         for name, shape in shapes.items():
             if getattr(self, name).shape != shape:
                 fail(f"{name} has shape {getattr(self, name).shape}, expected {shape}")
         for name, arr in self.arrays().items():
             want = np.float64 if name in _FLOAT_ARRAYS else np.int64
-            if arr.dtype != want:
+            if arr.dtype != want and not (name in _INT32_ARRAYS and arr.dtype == np.int32):
                 fail(f"{name} has dtype {arr.dtype}, expected {np.dtype(want)}")
         for ptr, data, what in (
             ("edge_ptr", ("edge_action", "edge_target"), "edges"),
@@ -262,6 +279,8 @@ class ObservationModel:
             k = getattr(self, key)
             if len(k) and (np.any(np.diff(k) <= 0) or k[0] < 0 or k[-1] >= bound):
                 fail(f"{key} is not strictly ascending within [0, {bound})")
+        if len(self.edge_cost) not in (0, len(self.edge_action)):
+            fail(f"edge_cost has {len(self.edge_cost)} costs for {len(self.edge_action)} edges")
         if not np.all((self.edge_cost >= 0) & (self.edge_cost <= 1)):
             fail("edge_cost holds movement costs outside [0, 1]")
 
@@ -269,6 +288,14 @@ class ObservationModel:
 _FLOAT_ARRAYS = frozenset(
     {"pose_xyz", "pose_quat", "action_delta", "action_cost", "tally_cum", "marg_cum", "edge_cost"}
 )
+
+
+def _rekey_by_class(key: np.ndarray, n_inner: int, K: int) -> tuple[np.ndarray, np.ndarray]:
+    """Codes y * n_inner + r re-keyed as r * K + y, ascending, with the row of each."""
+    key = np.asarray(key, dtype=np.int64)
+    code = (key % max(n_inner, 1)) * K + key // max(n_inner, 1)
+    order = np.argsort(code, kind="stable")
+    return code[order], order.astype(np.int64)
 
 
 # --- pure pose math ---------------------------------------------------------------------------
@@ -531,8 +558,9 @@ def build_observation_model(
     move_cost = movement_cost(delta, max_t)
     n_in = np.bincount(edge_action, minlength=A)
     action_cost = np.bincount(edge_action, weights=move_cost, minlength=A) / np.maximum(n_in, 1)
-    # Relative: the paper's c_m(a) of the edge's action; absolute: the exact move's own cost.
-    edge_cost = move_cost if absolute else action_cost[edge_action]
+    # Relative: the paper's c_m(a) of the edge's action (derived, not stored); absolute: the
+    # exact move's own cost.
+    edge_cost = move_cost if absolute else np.zeros(0)
     edge_ptr = np.arange(P + 1, dtype=np.int64) * max(P - 1, 0)
 
     # Cells and bins of every training triangle.
@@ -637,8 +665,8 @@ def build_observation_model(
         action_delta=action_delta,
         action_cost=action_cost,
         edge_ptr=edge_ptr,
-        edge_action=edge_action.astype(np.int64),
-        edge_target=dst.astype(np.int64),
+        edge_action=edge_action.astype(edge_index_dtype(len(dst), max(A, P))),
+        edge_target=dst.astype(edge_index_dtype(len(dst), max(A, P))),
         out_cell=out_cell,
         out_ptr=out_ptr,
         out_bin=out_bin,

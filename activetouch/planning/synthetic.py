@@ -33,6 +33,7 @@ from activetouch.planning.observation_model import (
     GRANULARITIES,
     ObservationModel,
     concat_csr_rows,
+    edge_index_dtype,
 )
 from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
 
@@ -137,6 +138,92 @@ def _rows(keys: np.ndarray, outs: np.ndarray, n_out: int) -> tuple[np.ndarray, .
     return rk.astype(np.int64), ptr, uo.astype(np.int64), cum
 
 
+# Action keys: the 7 integer cells of a relative pose, each offset into [0, 128), in base 128.
+_KEY_BASE, _KEY_OFFSET = 128, 64
+
+
+def _pair_action_keys(
+    xyz: np.ndarray, quat: np.ndarray, sources: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(action key, target, integer cells (n, 7)) of every edge out of `sources` (targets
+    ascending, self skipped)."""
+    P = len(xyz)
+    src = np.repeat(sources, P - 1)
+    off = np.tile(np.arange(P - 1), len(sources))
+    tgt = off + (off >= src)
+    t_rel = _rotate_inverse(quat[src], xyz[tgt] - xyz[src])
+    q_rel = _quat_conj_mul(quat[src], quat[tgt])
+    q_rel *= np.where(q_rel[:, 3:4] < 0, -1.0, 1.0)  # q and -q are one rotation
+    cells = np.concatenate(
+        [
+            np.trunc(t_rel / TRANSLATION_CELL_M).astype(np.int64),
+            np.trunc(q_rel / QUATERNION_CELL).astype(np.int64),
+        ],
+        axis=1,
+    )
+    key = np.zeros(len(src), dtype=np.int64)
+    for col in cells.T:
+        key = key * _KEY_BASE + (col + _KEY_OFFSET)
+    return key, tgt, cells
+
+
+def _all_pairs_actions(
+    xyz: np.ndarray, quat: np.ndarray, chunk_edges: int = 250_000
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(edge_action, edge_target, action_delta) of all ordered pairs, built a block of source
+    poses at a time so that no pass holds every pair's pose (25 M x 7 doubles at 5000 poses):
+    each block's edges get block-local action ids, which are then mapped to their rank among
+    all blocks' distinct keys. An action's delta is the cells of its first edge."""
+    P = len(xyz)
+    E = P * (P - 1)
+    blocks = np.array_split(np.arange(P), max(1, E // chunk_edges))
+    dtype = edge_index_dtype(E, E)
+    edge_action = np.empty(E, dtype=dtype)
+    edge_target = np.empty(E, dtype=dtype)
+    spans, local_keys = [], []
+    keys = np.zeros(0, dtype=np.int64)  # distinct keys so far, ascending, and their cells
+    cells = np.zeros((0, 7), dtype=np.int16)  # cells are within +-128: 2 bytes each
+    for b in blocks:
+        key, tgt, c = _pair_action_keys(xyz, quat, b)
+        lo, hi = b[0] * (P - 1), (b[-1] + 1) * (P - 1)
+        u, first, inv = np.unique(key, return_index=True, return_inverse=True)
+        edge_action[lo:hi] = inv
+        edge_target[lo:hi] = tgt
+        spans.append((lo, hi))
+        local_keys.append(u)
+        new = ~_sorted_contains(keys, u)  # first met in this block: its first edge is here
+        keys = np.concatenate([keys, u[new]])
+        cells = np.concatenate([cells, c[first[new]].astype(np.int16)])
+        order = np.argsort(keys, kind="stable")
+        keys, cells = keys[order], cells[order]
+    for (lo, hi), u in zip(spans, local_keys, strict=True):
+        edge_action[lo:hi] = np.searchsorted(keys, u).astype(dtype)[edge_action[lo:hi]]
+    action_delta = np.concatenate(
+        [cells[:, :3] * TRANSLATION_CELL_M, cells[:, 3:] * QUATERNION_CELL], axis=1
+    ).astype(np.float64)
+    return edge_action, edge_target, action_delta
+
+
+def _sorted_contains(sorted_keys: np.ndarray, values: np.ndarray) -> np.ndarray:
+    pos = np.minimum(np.searchsorted(sorted_keys, values), max(len(sorted_keys) - 1, 0))
+    return (sorted_keys[pos] == values) if len(sorted_keys) else np.zeros(len(values), bool)
+
+
+def _action_lengths(
+    action_delta: np.ndarray, chunk: int = 1 << 18
+) -> tuple[np.ndarray, np.ndarray]:
+    """(translation length, rotation angle) of each action, a slice at a time (the (A, 4)
+    temporaries of a single pass are 100 MB each at 5000 poses)."""
+    t_len = np.empty(len(action_delta))
+    angle = np.empty(len(action_delta))
+    for lo in range(0, len(action_delta), chunk):
+        d = action_delta[lo : lo + chunk]
+        t_len[lo : lo + chunk] = np.linalg.norm(d[:, :3], axis=1)
+        qn = d[:, 3:] / np.maximum(np.linalg.norm(d[:, 3:], axis=1), 1e-12)[:, None]
+        angle[lo : lo + chunk] = 2.0 * np.arccos(np.clip(np.abs(qn[:, 3]), 0.0, 1.0))
+    return t_len, angle
+
+
 def synthetic_problem(
     n_poses: int = 1064,
     n_classes: int = 7,
@@ -190,31 +277,9 @@ def synthetic_problem(
         quat[ids] = _look_at_quaternions(-dirs[pick], rolls[pick])
 
     # Edges: every ordered pair of distinct poses; actions = discretised relative poses.
-    src = np.repeat(np.arange(P), P - 1)
-    off = np.tile(np.arange(P - 1), P)
-    tgt = off + (off >= src)
-    t_rel = _rotate_inverse(quat[src], xyz[tgt] - xyz[src])
-    q_rel = _quat_conj_mul(quat[src], quat[tgt])
-    q_rel *= np.where(q_rel[:, 3:4] < 0, -1.0, 1.0)  # q and -q are one rotation
-    ti = np.trunc(t_rel / TRANSLATION_CELL_M).astype(np.int64)
-    qi = np.trunc(q_rel / QUATERNION_CELL).astype(np.int64)
-    codes = np.concatenate([ti + 64, qi + 64], axis=1)  # each in [0, 128)
-    key = np.zeros(len(src), dtype=np.int64)
-    for col in range(7):
-        key = key * 128 + codes[:, col]
-    uniq_key, edge_action = np.unique(key, return_inverse=True)
-    A = len(uniq_key)
-    first = np.zeros(A, dtype=np.int64)
-    first[edge_action[::-1]] = np.arange(len(src))[::-1]
-    action_delta = np.concatenate(
-        [ti[first] * TRANSLATION_CELL_M, qi[first] * QUATERNION_CELL], axis=1
-    ).astype(np.float64)
-    t_len = np.linalg.norm(action_delta[:, :3], axis=1)
-    qn = (
-        action_delta[:, 3:]
-        / np.maximum(np.linalg.norm(action_delta[:, 3:], axis=1), 1e-12)[:, None]
-    )
-    angle = 2.0 * np.arccos(np.clip(np.abs(qn[:, 3]), 0.0, 1.0))
+    edge_action, tgt, action_delta = _all_pairs_actions(xyz, quat)
+    A = len(action_delta)
+    t_len, angle = _action_lengths(action_delta)
     action_cost = 0.5 * (t_len / max(t_len.max(), 1e-12)) + 0.5 * (angle / np.pi)
     edge_ptr = np.arange(P + 1, dtype=np.int64) * (P - 1)
 
@@ -266,7 +331,7 @@ def synthetic_problem(
         for i in members:
             js = members[members != i]
             e = edge_ptr[i] + np.where(js < i, js, js - 1)
-            acts = edge_action[e]
+            acts = edge_action[e].astype(np.int64)  # int32 edges: codes below need int64
             outs = [g_outs[j] for j in js]
             lens = np.array([len(o) for o in outs])
             flat_out = np.concatenate(outs)
@@ -291,8 +356,8 @@ def synthetic_problem(
         action_delta=action_delta,
         action_cost=action_cost,
         edge_ptr=edge_ptr,
-        edge_action=edge_action.astype(np.int64),
-        edge_target=tgt.astype(np.int64),
+        edge_action=edge_action,
+        edge_target=tgt,
         out_cell=out_cell,
         out_ptr=out_ptr,
         out_bin=out_bin,

@@ -489,14 +489,13 @@ def test_sampled_observations_follow_eq4(synth) -> None:
     a_marg = next(a for a in sorted(seen_marg) if (a, 0) not in seen_tally)
     cases["marg"] = (0, a_marg)
     cases["none"] = (0, next(a for a in range(A) if a not in seen_marg))
-    rows = np.empty(m.n_classes, dtype=np.int64)
     mcts.seed_numba(123)
     for kind, (cell, action) in cases.items():
         counters = np.zeros(3, dtype=np.int64)
         n = 20000
         draws = np.array(
             [
-                mcts._sample_outcome(mt, kern, action, cell, counts, S, rows, counters, False)
+                mcts._sample_outcome(mt, kern, action, cell, counts, S, counters, False)
                 for _ in range(n)
             ]
         )
@@ -571,15 +570,11 @@ def test_per_class_backoff_follows_its_reference(synth) -> None:
         key = (int(k % C), int(k // C % A))
         by_pair[key] = by_pair.get(key, 0) + 1
     cell, action = next(p for p, n in by_pair.items() if n < m.n_classes)
-    rows = np.empty(m.n_classes, dtype=np.int64)
     counters = np.zeros(3, dtype=np.int64)
     mcts.seed_numba(7)
     n = 20000
     draws = np.array(
-        [
-            mcts._sample_outcome(mt, kern, action, cell, counts, S, rows, counters, True)
-            for _ in range(n)
-        ]
+        [mcts._sample_outcome(mt, kern, action, cell, counts, S, counters, True) for _ in range(n)]
     )
     expect = outcome_probabilities_per_class(m, cell, action, p_y)
     freq = np.bincount(draws[draws >= 0], minlength=m.n_outcomes) / n

@@ -452,8 +452,9 @@ def test_edge_cost_is_the_cost_of_the_move() -> None:
         objs, SPEC, ObservationConfig(granularity="triangle", action_frame="absolute")
     )
     np.testing.assert_array_equal(ab.pose_xyz, rel.pose_xyz)
-    # Relative actions: the paper's c_m(a) of the edge's action.
-    np.testing.assert_array_equal(rel.edge_cost, rel.action_cost[rel.edge_action])
+    # Relative actions: the paper's c_m(a) of the edge's action, derived rather than stored.
+    assert len(rel.edge_cost) == 0
+    np.testing.assert_array_equal(rel.edge_costs(), rel.action_cost[rel.edge_action])
     # Absolute actions: the cost of the exact move p -> q, edge by edge.
     src = np.repeat(np.arange(ab.n_poses), np.diff(ab.edge_ptr))
     pooled = np.concatenate([ab.pose_xyz, ab.pose_quat], axis=1)
@@ -463,13 +464,23 @@ def test_edge_cost_is_the_cost_of_the_move() -> None:
     # Saved and loaded, the edge costs and the frame survive.
     again = ObservationModel.from_parts(ab.scalars(), ab.arrays())
     assert again.action_frame == "absolute"
-    np.testing.assert_array_equal(again.edge_cost, ab.edge_cost)
-    # A model saved before edge_cost existed derives it from its actions.
+    np.testing.assert_array_equal(again.edge_costs(), ab.edge_cost)
+    # A model saved before edge_cost existed derives it from its actions; one saved with
+    # int64 edges and stored relative costs (before they were derived) loads as it was.
     old = {k: v for k, v in rel.arrays().items() if k != "edge_cost"}
     scal = {k: v for k, v in rel.scalars().items() if k != "action_frame"}
     loaded = ObservationModel.from_parts(scal, old)
     assert loaded.action_frame == "relative"
-    np.testing.assert_array_equal(loaded.edge_cost, rel.edge_cost)
+    np.testing.assert_array_equal(loaded.edge_costs(), rel.edge_costs())
+    wide = dict(
+        rel.arrays(),
+        edge_action=rel.edge_action.astype(np.int64),
+        edge_target=rel.edge_target.astype(np.int64),
+        edge_cost=rel.edge_costs(),
+    )
+    np.testing.assert_array_equal(
+        ObservationModel.from_parts(rel.scalars(), wide).edge_costs(), rel.edge_costs()
+    )
     with pytest.raises(DataError, match="edge_cost"):
         ObservationModel.from_parts(ab.scalars(), dict(ab.arrays(), edge_cost=ab.edge_cost[:-1]))
     with pytest.raises(ConfigError, match="action_frame"):
