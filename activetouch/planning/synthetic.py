@@ -138,15 +138,16 @@ def _rows(keys: np.ndarray, outs: np.ndarray, n_out: int) -> tuple[np.ndarray, .
     return rk.astype(np.int64), ptr, uo.astype(np.int64), cum
 
 
-# Action keys: the 7 integer cells of a relative pose, each offset into [0, 128), in base 128.
-_KEY_BASE, _KEY_OFFSET = 128, 64
+# Action keys: the 7 integer cells of a relative pose, each offset into [0, 256), in base 256
+# (56 bits). Translation cells reach +-70 with 100 classes (spheres up to 2.1 m apart), which
+# a base of 128 let carry into the next cell, merging different moves into one action.
+_KEY_BASE, _KEY_OFFSET = 256, 128
 
 
 def _pair_action_keys(
     xyz: np.ndarray, quat: np.ndarray, sources: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(action key, target, integer cells (n, 7)) of every edge out of `sources` (targets
-    ascending, self skipped)."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """(action key, target) of every edge out of `sources` (targets ascending, self skipped)."""
     P = len(xyz)
     src = np.repeat(sources, P - 1)
     off = np.tile(np.arange(P - 1), len(sources))
@@ -154,26 +155,20 @@ def _pair_action_keys(
     t_rel = _rotate_inverse(quat[src], xyz[tgt] - xyz[src])
     q_rel = _quat_conj_mul(quat[src], quat[tgt])
     q_rel *= np.where(q_rel[:, 3:4] < 0, -1.0, 1.0)  # q and -q are one rotation
-    cells = np.concatenate(
-        [
-            np.trunc(t_rel / TRANSLATION_CELL_M).astype(np.int64),
-            np.trunc(q_rel / QUATERNION_CELL).astype(np.int64),
-        ],
-        axis=1,
-    )
     key = np.zeros(len(src), dtype=np.int64)
-    for col in cells.T:
-        key = key * _KEY_BASE + (col + _KEY_OFFSET)
-    return key, tgt, cells
+    for v, cell in ((t_rel, TRANSLATION_CELL_M), (q_rel, QUATERNION_CELL)):
+        for col in np.trunc(v / cell).astype(np.int64).T:
+            key = key * _KEY_BASE + (col + _KEY_OFFSET)
+    return key, tgt
 
 
 def _all_pairs_actions(
     xyz: np.ndarray, quat: np.ndarray, chunk_edges: int = 250_000
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(edge_action, edge_target, action_delta) of all ordered pairs, built a block of source
-    poses at a time so that no pass holds every pair's pose (25 M x 7 doubles at 5000 poses):
-    each block's edges get block-local action ids, which are then mapped to their rank among
-    all blocks' distinct keys. An action's delta is the cells of its first edge."""
+    """(edge_action, edge_target, sorted distinct action keys) of all ordered pairs, built a
+    block of source poses at a time so that no pass holds every pair's pose (25 M x 7 doubles
+    at 5000 poses): each block's edges get block-local action ids, which are then mapped to
+    their rank among all blocks' distinct keys."""
     P = len(xyz)
     E = P * (P - 1)
     blocks = np.array_split(np.arange(P), max(1, E // chunk_edges))
@@ -181,32 +176,32 @@ def _all_pairs_actions(
     edge_action = np.empty(E, dtype=dtype)
     edge_target = np.empty(E, dtype=dtype)
     spans, local_keys = [], []
-    keys = np.zeros(0, dtype=np.int64)  # distinct keys so far, ascending, and their cells
-    cells = np.zeros((0, 7), dtype=np.int16)  # cells are within +-128: 2 bytes each
     for b in blocks:
-        key, tgt, c = _pair_action_keys(xyz, quat, b)
+        key, tgt = _pair_action_keys(xyz, quat, b)
         lo, hi = b[0] * (P - 1), (b[-1] + 1) * (P - 1)
-        u, first, inv = np.unique(key, return_index=True, return_inverse=True)
+        u, inv = np.unique(key, return_inverse=True)
         edge_action[lo:hi] = inv
         edge_target[lo:hi] = tgt
         spans.append((lo, hi))
         local_keys.append(u)
-        new = ~_sorted_contains(keys, u)  # first met in this block: its first edge is here
-        keys = np.concatenate([keys, u[new]])
-        cells = np.concatenate([cells, c[first[new]].astype(np.int16)])
-        order = np.argsort(keys, kind="stable")
-        keys, cells = keys[order], cells[order]
+    every = np.sort(np.concatenate(local_keys))
+    uniq = every[np.concatenate([[True], every[1:] != every[:-1]])]
+    del every
     for (lo, hi), u in zip(spans, local_keys, strict=True):
-        edge_action[lo:hi] = np.searchsorted(keys, u).astype(dtype)[edge_action[lo:hi]]
-    action_delta = np.concatenate(
-        [cells[:, :3] * TRANSLATION_CELL_M, cells[:, 3:] * QUATERNION_CELL], axis=1
-    ).astype(np.float64)
-    return edge_action, edge_target, action_delta
+        edge_action[lo:hi] = np.searchsorted(uniq, u).astype(dtype)[edge_action[lo:hi]]
+    return edge_action, edge_target, uniq
 
 
-def _sorted_contains(sorted_keys: np.ndarray, values: np.ndarray) -> np.ndarray:
-    pos = np.minimum(np.searchsorted(sorted_keys, values), max(len(sorted_keys) - 1, 0))
-    return (sorted_keys[pos] == values) if len(sorted_keys) else np.zeros(len(values), bool)
+def _decode_action_keys(keys: np.ndarray) -> np.ndarray:
+    """(A, 7) discretised translation and quaternion of each action key (a column at a time:
+    A is 3.5 M at 5000 poses)."""
+    out = np.empty((len(keys), 7), dtype=np.float64)
+    k = keys.copy()
+    for col in range(6, -1, -1):
+        out[:, col] = k % _KEY_BASE - _KEY_OFFSET
+        out[:, col] *= TRANSLATION_CELL_M if col < 3 else QUATERNION_CELL
+        k //= _KEY_BASE
+    return out
 
 
 def _action_lengths(
@@ -277,8 +272,10 @@ def synthetic_problem(
         quat[ids] = _look_at_quaternions(-dirs[pick], rolls[pick])
 
     # Edges: every ordered pair of distinct poses; actions = discretised relative poses.
-    edge_action, tgt, action_delta = _all_pairs_actions(xyz, quat)
-    A = len(action_delta)
+    edge_action, tgt, keys = _all_pairs_actions(xyz, quat)
+    A = len(keys)
+    action_delta = _decode_action_keys(keys)
+    del keys
     t_len, angle = _action_lengths(action_delta)
     action_cost = 0.5 * (t_len / max(t_len.max(), 1e-12)) + 0.5 * (angle / np.pi)
     edge_ptr = np.arange(P + 1, dtype=np.int64) * (P - 1)
