@@ -89,6 +89,11 @@ class PlannerConfig:
     # both are Eq. 1). "info_gain": the mean over the path of H(p(y | h_t)) / log K, i.e. the
     # expected entropy reduction per step (docs/planner.md).
     objective: str = "anytime"
+    # Eq. 4 draws the class that produces a simulated observation from p(y | h)^(1 / tau),
+    # normalised: 1 is Eq. 4; above 1 the runners-up's observations are imagined more often,
+    # so a path that would test the leading class is not scored as learning nothing when the
+    # belief is confidently wrong (docs/benchmark.md).
+    belief_temperature: float = 1.0
 
 
 @dataclass

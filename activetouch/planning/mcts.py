@@ -10,7 +10,8 @@ One tree search (Alg. 3 run `simulations` times from a fresh root, then Alg. 2's
   from ``p(y | h_t)`` restricted to the classes that have a tally row for (y, a, z); with none,
   the classes with a marginal row for (y, a); with none of those either the step observes
   nothing (the histogram is unchanged and the next step has no conditioning cell). Then an
-  outcome is drawn from that row and its bins are added to the simulated histogram.
+  outcome is drawn from that row and its bins are added to the simulated histogram. Option
+  ``planner.belief_temperature`` tau draws the class from p(y | h_t)^(1/tau) instead (1: Eq. 4).
 - **Expansion**: one new node per simulation at most; the tree policy stops there.
 - **Rollout**: uniformly random unvisited edges down to depth T (a temporary path, not stored).
 - **Cost** (Eq. 1): ``C = lam / T * sum_t c_m(a_t) + (1 - lam) * (1 - max_y p(y | h_T))`` with
@@ -230,6 +231,25 @@ def _class_span(keys: np.ndarray, base: int, n_classes: int) -> tuple:
 
 
 @njit(cache=True)
+def _tempered(p: np.ndarray, inv_temp: float) -> np.ndarray:
+    """p^inv_temp normalised (p itself when inv_temp is 1): with a belief temperature above 1
+    Eq. 4 imagines the runners-up's observations more often than p(y|h) says, so a path
+    that would test the leading class against them is not scored as learning nothing."""
+    if inv_temp == 1.0:
+        return p
+    q = np.empty_like(p)
+    total = 0.0
+    for k in range(p.shape[0]):
+        q[k] = p[k] ** inv_temp
+        total += q[k]
+    if total <= 0.0:
+        return p
+    for k in range(p.shape[0]):
+        q[k] /= total
+    return q
+
+
+@njit(cache=True)
 def _sample_outcome(
     m: tuple,
     kern: tuple,
@@ -239,20 +259,23 @@ def _sample_outcome(
     S: np.ndarray,
     counters: np.ndarray,
     per_class: bool,
+    inv_temp: float = 1.0,
 ) -> int:
     """Eq. 4: an outcome id for taking `action` from conditioning `cell` (-1: none), or -1.
 
     `per_class` False: y is drawn among the classes that have data for (a, cell) (else for a
     alone), renormalising p(y|h) over them. True: y is drawn from the full p(y|h); that class
     answers from its (a, cell) row, else its (a) row, else with nothing observed — so a class
-    without data cannot make another class's observation look certain."""
+    without data cannot make another class's observation look certain.
+    `inv_temp`: 1 / planner.belief_temperature; below 1 the class is drawn from a flattened
+    p(y|h)^inv_temp (see `_tempered`)."""
     tally_ptr, tally_out, tally_cum = m[8], m[9], m[10]
     marg_ptr, marg_out, marg_cum = m[12], m[13], m[14]
     n_cells = m[16]
     tkey, trow, mkey, mrow = m[17], m[18], m[19], m[20]
     n_classes = kern[7]
     if per_class:
-        p = _proba_scores(kern, hist, S)
+        p = _tempered(_proba_scores(kern, hist, S), inv_temp)
         u = np.random.random()
         acc = 0.0
         y = n_classes - 1
@@ -292,7 +315,7 @@ def _sample_outcome(
     sel = lo
     if found > 1:
         # p(y | h_t) only matters when several classes could have produced the observation.
-        p = _proba_scores(kern, hist, S)
+        p = _tempered(_proba_scores(kern, hist, S), inv_temp)
         total = 0.0
         for i in range(lo, hi):
             total += p[keys[i] - base]
@@ -321,10 +344,11 @@ def _observe(
     S: np.ndarray,
     counters: np.ndarray,
     per_class: bool,
+    inv_temp: float,
 ) -> tuple:
     """One simulated observation (Eq. 4) added to the histogram and its scores; returns the
     outcome (-1: nothing observed) and the cell it leaves (-1 then too)."""
-    o = _sample_outcome(m, kern, action, cell, hist, S, counters, per_class)
+    o = _sample_outcome(m, kern, action, cell, hist, S, counters, per_class, inv_temp)
     if o < 0:
         return o, -1
     out_cell, out_ptr, out_bin = m[4], m[5], m[6]  # model_tuple's order
@@ -503,6 +527,7 @@ def _run_simulations(
     lam: float,
     per_class: bool,
     objective: int,
+    inv_temp: float,
     seed: int,
     nodes: tuple,
     recs: tuple,
@@ -597,7 +622,7 @@ def _run_simulations(
             e = rec_edge[rec]
             a = edge_action[e]
             move += _edge_cost(edge_cost, action_cost, a, e)
-            o, cell = _observe(m, kern, a, cell, hist, S, counters, per_class)
+            o, cell = _observe(m, kern, a, cell, hist, S, counters, per_class, inv_temp)
             if per_step:
                 last = _step_unsure(kern, hist, S, o, last, objective)
                 unsure += last
@@ -635,7 +660,7 @@ def _run_simulations(
                 break
             a = edge_action[e]
             move += _edge_cost(edge_cost, action_cost, a, e)
-            o, cell = _observe(m, kern, a, cell, hist, S, counters, per_class)
+            o, cell = _observe(m, kern, a, cell, hist, S, counters, per_class, inv_temp)
             if per_step:
                 last = _step_unsure(kern, hist, S, o, last, objective)
                 unsure += last
@@ -966,6 +991,7 @@ class TreeSearch:
         lam: float = 0.5,
         keep_tree: bool = False,
         per_class_backoff: bool = False,
+        belief_temperature: float = 1.0,
     ) -> SearchResult:
         """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
 
@@ -979,6 +1005,8 @@ class TreeSearch:
             raise PlanningError(f"planning horizon must be >= 1, got {horizon}")
         if simulations < 1:
             raise PlanningError(f"number of simulations must be >= 1, got {simulations}")
+        if not belief_temperature > 0:
+            raise PlanningError(f"belief temperature must be > 0, got {belief_temperature}")
         hist = np.array(counts, dtype=np.float64).reshape(-1)
         if hist.shape[0] != model.n_bins:
             raise PlanningError(
@@ -1023,6 +1051,7 @@ class TreeSearch:
             np.float64(lam),
             bool(per_class_backoff),
             np.int64(self._objective_code),
+            np.float64(1.0 / belief_temperature),
             np.int64(seed),
             nodes,
             recs,

@@ -122,6 +122,7 @@ class TreePolicy(Policy):
         replan_every_grasp: bool = False,
         eq4_sampling: str = "renormalise",
         objective: str = "final",
+        belief_temperature: float = 1.0,
     ) -> None:
         if horizon < 1:
             raise ConfigError(f"planner.horizon must be >= 1, got {horizon}")
@@ -131,6 +132,9 @@ class TreePolicy(Policy):
             raise ConfigError(f"planner.lam must lie in [0, 1], got {lam}")
         if exploration_c < 0.0:
             raise ConfigError(f"planner.exploration_c must be >= 0, got {exploration_c}")
+        if not belief_temperature > 0.0:
+            raise ConfigError(f"planner.belief_temperature must be > 0, got {belief_temperature}")
+        self.belief_temperature = float(belief_temperature)
         self.horizon = int(horizon)
         self.simulations = int(simulations)
         self.exploration_c = float(exploration_c)
@@ -169,6 +173,7 @@ class TreePolicy(Policy):
             exploration_c=self.exploration_c,
             lam=self.lam,
             per_class_backoff=self.per_class_backoff,
+            belief_temperature=self.belief_temperature,
         )
         if res.exhausted:
             return _exhausted(self.name)
@@ -240,6 +245,7 @@ def _make(
         "replan_every_grasp": cfg.replan_every_grasp,
         "eq4_sampling": cfg.eq4_sampling,
         "objective": cfg.objective,
+        "belief_temperature": cfg.belief_temperature,
     }
     if name == "tree":
         return TreePolicy(model, kernel, horizon=cfg.horizon, **kw)  # type: ignore[arg-type]

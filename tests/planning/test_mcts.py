@@ -582,3 +582,49 @@ def test_per_class_backoff_follows_its_reference(synth) -> None:
     assert abs(np.mean(draws < 0) - (1.0 - expect.sum())) < 0.02
     # The renormalising reading never answers "nothing" when some class has a row.
     assert not np.allclose(expect, outcome_probabilities(m, cell, action, p_y))
+
+
+def test_tempered_eq4_draws_classes_from_the_flattened_belief(synth) -> None:
+    """planner.belief_temperature tau: the sampler's outcome frequencies follow Eq. 4's
+    reference with p(y|h)^(1/tau) normalised in place of p(y|h); tau = 1 is Eq. 4 itself."""
+    m = synth.model
+    kern = mcts.kernel_tuple(synth.kernel)
+    mt = model_tuple(m)
+    counts, _ = _root(synth, 3)
+    p_y = synth.kernel.proba(counts)
+    S = np.empty(kern[1].shape[0] + 2)
+    mcts._scores_init(kern, counts, S)
+    A, C = m.n_actions, m.n_cells
+    by_pair: dict[tuple[int, int], int] = {}
+    for k in m.tally_key:
+        key = (int(k % C), int(k // C % A))
+        by_pair[key] = by_pair.get(key, 0) + 1
+    cell, action = max(by_pair, key=by_pair.get)  # the pair most classes answer
+    tau = 4.0
+    flat = p_y ** (1 / tau) / np.sum(p_y ** (1 / tau))
+    np.testing.assert_allclose(mcts._tempered(p_y, 1 / tau), flat, atol=1e-12)
+    assert mcts._tempered(p_y, 1.0) is p_y
+    expect = outcome_probabilities(m, cell, action, flat)
+    assert np.abs(expect - outcome_probabilities(m, cell, action, p_y)).max() > 0.05
+    mcts.seed_numba(11)
+    counters = np.zeros(3, dtype=np.int64)
+    n = 20000
+    draws = np.array(
+        [
+            mcts._sample_outcome(mt, kern, action, cell, counts, S, counters, False, 1 / tau)
+            for _ in range(n)
+        ]
+    )
+    freq = np.bincount(draws, minlength=m.n_outcomes) / n
+    assert np.abs(freq - expect).max() < 0.02
+    with pytest.raises(PlanningError, match="temperature"):
+        TreeSearch(m, synth.kernel).search(
+            0,
+            NO_POSES,
+            counts,
+            np.zeros(0, np.int64),
+            horizon=2,
+            simulations=5,
+            rng=np.random.default_rng(0),
+            belief_temperature=0.0,
+        )
