@@ -181,8 +181,10 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
             "bins": m.n_bins,
             "tally_rows": len(m.tally_key),
             "marginal_rows": len(m.marg_key),
-            # What a robot PC holds to plan: the model's arrays (its edges grow as poses^2).
+            # What a robot PC holds to plan: the model's arrays (its edges grow as poses^2)
+            # and the search's index of them (rows re-keyed by action, cell, class).
             "array_bytes": model_bytes(m),
+            "search_index_bytes": int(sum(a.nbytes for a in m.rows_by_action)),
         },
         # Process peaks: after building the synthetic model (a training-time cost on a real
         # library), and at the end, planning included.
@@ -198,9 +200,7 @@ def run(args: argparse.Namespace, console: Console) -> dict[str, Any]:
         rate_full, _ = measure_rate(full, pr, 5, args.sims, args.repeats, rng)
         rate_inc = next(r["sims_per_s"] for r in results if r["horizon"] == 5)
         py_sims = 200
-        rate_py = pure_python_rate(
-            args.poses, args.classes, args.seed, 5, py_sims, args.objective
-        )
+        rate_py = pure_python_rate(args.poses, args.classes, args.seed, 5, py_sims, args.objective)
         out["compare_T5"] = {
             "numba_incremental_sims_per_s": rate_inc,
             "numba_full_kernel_proba_sims_per_s": round(rate_full, 1),
@@ -246,7 +246,8 @@ def print_results(out: dict[str, Any], console: Console) -> None:
     )
     mb = 1024 * 1024
     console.print(
-        f"memory: model arrays {out['model']['array_bytes'] / mb:,.0f} MiB; process peak "
+        f"memory: model arrays {out['model']['array_bytes'] / mb:,.0f} MiB (search index "
+        f"{out['model']['search_index_bytes'] / mb:,.0f} MiB more); process peak "
         f"{out['peak_rss_bytes_after_build'] / mb:,.0f} MiB after building the synthetic model, "
         f"{out['peak_rss_bytes'] / mb:,.0f} MiB at the end"
     )
