@@ -12,6 +12,7 @@ import importlib
 import sys
 
 from rich.console import Console
+from rich.markup import escape
 
 from activetouch import __version__
 from activetouch.errors import ActiveTouchError
@@ -71,12 +72,14 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except ActiveTouchError as e:
-        Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {e}", highlight=False)
+        # escape: a message may hold brackets (e.g. 'activetouch[ray]') that are not markup
+        err = escape(str(e))
+        Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {err}", highlight=False)
         return 2
     except OSError as e:
         # A path the user gave is missing, not a directory, read-only, full...: one line.
         where = f": {e.filename}" if e.filename else ""
-        msg = f"{e.strerror or e}{where}"
+        msg = escape(f"{e.strerror or e}{where}")
         Console(stderr=True, soft_wrap=True).print(f"[bold red]error:[/] {msg}", highlight=False)
         return 2
     except KeyboardInterrupt:

@@ -19,9 +19,9 @@ from scipy.stats import binomtest
 from activetouch.config import Config, SimConfig
 from activetouch.errors import ConfigError
 from activetouch.recognition.distances import inner_product_distance
+from activetouch.service.executors import check_executor, ray_map
 
 STABLE_RUN = 3  # "3-in-a-row correct", as in the paper's real-robot table
-EXECUTORS = ("local", "ray")
 # The real robot's errors the twin can add (SimConfig; docs/benchmark.md), as eval reports them.
 ERROR_SETTINGS = (
     "placement_error_m",
@@ -223,11 +223,10 @@ def run_all(
     address: str | None = None,
 ) -> list[dict[str, Any]]:
     """Every job's record, in the order of `jobs`. `executor`: "local" (this machine's
-    processes, `workers` of them) or "ray" (a Ray cluster at `address`, or a local Ray)."""
-    if executor not in EXECUTORS:
-        raise ConfigError(f"--executor: {executor!r} is not one of {', '.join(EXECUTORS)}")
+    processes, `workers` of them) or "ray" (`run_all_ray`)."""
+    check_executor(executor, address)
     if executor == "ray":
-        return run_all_ray(jobs, address, progress)
+        return run_all_ray(jobs, address, progress, workers)
     workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
     out: list[dict[str, Any]] = []
     if workers == 1:
@@ -246,36 +245,22 @@ def run_all(
     return out
 
 
-def _import_ray() -> Any:
-    try:
-        import ray  # optional: `pip install "ray[default]"` (not a dependency of activetouch)
-    except ImportError:
-        raise ConfigError(
-            "--executor ray needs Ray, which is not installed: pip install 'ray[default]' "
-            "(or use the default --executor local)"
-        ) from None
-    return ray
-
-
 def run_all_ray(
-    jobs: list[Job], address: str | None = None, progress: Callable[[int, int], None] | None = None
+    jobs: list[Job],
+    address: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
 ) -> list[dict[str, Any]]:
-    """`run_all` on Ray: one task per job (each worker keeps its loaded model, as a local pool
-    worker does). `address`: a running cluster ("ray://head:10001" or "auto"); None starts
-    a local Ray. Records come back in job order, so results.json is the local executor's."""
-    ray = _import_ray()
-    if not ray.is_initialized():
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    task = ray.remote(run_job)
-    pending = {task.remote(j): i for i, j in enumerate(jobs)}
+    """`run_all` on Ray (executors.ray_map): one task per job, each worker keeping the model
+    it loaded, as a local pool worker does. `address`: a running cluster ("auto" on one of
+    its nodes, "ray://head:10001"); None starts a Ray here with `workers` CPUs. Records come
+    back in job order, so results.json is the local executor's."""
     out: list[dict[str, Any] | None] = [None] * len(jobs)
-    waiting = list(pending)
-    while waiting:
-        ready, waiting = ray.wait(waiting, num_returns=1)
-        for ref in ready:
-            out[pending[ref]] = ray.get(ref)
+    calls = [(j,) for j in jobs]
+    for done, (i, record) in enumerate(ray_map(run_job, calls, address, workers), 1):
+        out[i] = record
         if progress:
-            progress(len(jobs) - len(waiting), len(jobs))
+            progress(done, len(jobs))
     return [r for r in out if r is not None]
 
 

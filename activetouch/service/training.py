@@ -1,5 +1,5 @@
 """Train in the twin (paper Alg. 1): collect the missing grasps of each object, in parallel
-processes (one twin per process), then fit the model and save it."""
+processes (one twin per process) or Ray tasks, then fit the model and save it."""
 
 from __future__ import annotations
 
@@ -19,8 +19,9 @@ from activetouch.config import Config
 from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
 from activetouch.model import TrainedModel, train_model
 from activetouch.planning.grid import GridPoses, object_grids
-from activetouch.recognition.dataset import Dataset
+from activetouch.recognition.dataset import Dataset, GraspRecord
 from activetouch.service.collect import CollectStats, collect_object, pending_poses
+from activetouch.service.executors import check_executor, ray_map
 from activetouch.sim.objects import ObjectLibrary
 
 log = logging.getLogger(__name__)
@@ -78,9 +79,6 @@ def _collect_one(
     queue: object | None,
 ) -> CollectStats:
     # Runs in a worker process: it opens its own simulator client and dataset handle.
-    from activetouch.sim.twin import open_twin
-
-    spec = ObjectLibrary(library_root).get(name)
     ds = Dataset.open(dataset_path)
 
     sink = queue if queue is not None else _worker_queue
@@ -89,6 +87,21 @@ def _collect_one(
         if sink is not None:
             sink.put((name, done, total))  # type: ignore[attr-defined]
 
+    return _collect_into(library_root, ds, name, grid, cfg, report)
+
+
+def _collect_into(
+    library_root: str,
+    ds: Dataset | Grasped,
+    name: str,
+    grid: GridPoses,
+    cfg: Config,
+    report: Callable[[int, int], None] | None,
+) -> CollectStats:
+    """Grasp `name` at its pending poses of `grid` in a twin of its own, into `ds`."""
+    from activetouch.sim.twin import open_twin
+
+    spec = ObjectLibrary(library_root).get(name)
     attrs = {"extents": [float(v) for v in spec.extents], "set": spec.set}
     if cfg.arm.type != FLOATING_ARM:
         return _collect_on_devices(library_root, ds, name, grid, cfg, attrs, report)
@@ -108,12 +121,12 @@ def _collect_one(
 
 def _collect_on_devices(
     library_root: str,
-    ds: Dataset,
+    ds: Dataset | Grasped,
     name: str,
     grid: GridPoses,
     cfg: Config,
     attrs: dict,
-    report: Callable[[int, int], None],
+    report: Callable[[int, int], None] | None,
 ) -> CollectStats:
     """Collect on the configured simulated devices (e.g. the Baxter twin): the object placed
     through their ``sim/place``, the arm moving between grasps, only the poses its wrist
@@ -142,14 +155,23 @@ def collect(
     cfg: Config,
     workers: int | None = None,
     progress: Progress | None = None,
+    executor: str = "local",
+    address: str | None = None,
 ) -> list[CollectStats]:
-    """Collect every missing grasp of `names` into the dataset at `dataset_path`."""
+    """Collect every missing grasp of `names` into the dataset at `dataset_path`, one object
+    per worker: `workers` processes here (executor "local") or Ray tasks (`_collect_ray`)."""
+    check_executor(executor, address)
     specs = {n: library.get(n) for n in names}  # unknown names fail here, before any work
     ds = Dataset.create_or_open(dataset_path, dataset_meta(cfg))
     grids = object_grids({n: specs[n].extents for n in names}, cfg.grid)
     todo = [n for n in names if pending_poses(ds, n, grids[n])]
     stats = [CollectStats(name=n, already_done=len(grids[n])) for n in names if n not in todo]
     if not todo:
+        return stats
+    if executor == "ray":
+        with run_lock(dataset_path):
+            ds = Dataset.open(dataset_path)
+            stats.extend(_collect_ray(library, ds, todo, grids, cfg, workers, address, progress))
         return stats
     workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
     with run_lock(dataset_path):
@@ -195,6 +217,84 @@ def _collect_parallel(
             raise
         _drain(queue, progress)
         return [f.result() for f in futures]
+
+
+class Grasped:
+    """A dataset stand-in for collecting one object away from the dataset (a Ray task, maybe
+    on another machine): it knows what the dataset held for the object when the collection
+    started (so collect_object resumes the same way) and keeps what collect_object appends,
+    for the process that owns the dataset to write (`write_to`)."""
+
+    def __init__(self, ds: Dataset, name: str) -> None:
+        self.path = ds.path  # for messages
+        self.name = name
+        self.known = name in ds.object_names()
+        self._attrs = ds.attrs(name) if self.known else {}
+        self._done = ds.done_pose_ids(name) if self.known else set()
+        self.batches: list[tuple[list[GraspRecord], dict]] = []
+
+    def object_names(self) -> list[str]:
+        return [self.name] if self.known or self.batches else []
+
+    def attrs(self, name: str) -> dict:
+        out = dict(self._attrs)
+        for _, attrs in self.batches:
+            out.update(attrs)
+        return out
+
+    def done_pose_ids(self, name: str) -> set[int]:
+        return self._done | {r.pose_id for records, _ in self.batches for r in records}
+
+    def append(self, name: str, records: list[GraspRecord], attrs: dict | None = None) -> None:
+        self.batches.append((list(records), dict(attrs or {})))
+
+    def write_to(self, ds: Dataset) -> None:
+        """One append of every batch: the content the batches' own appends would have made
+        (records merge by pose id, the later winning; attrs merge, the later winning)."""
+        if self.batches:
+            records = [r for batch, _ in self.batches for r in batch]
+            ds.append(self.name, records, attrs=self.attrs(self.name))
+
+
+def _collect_remote(
+    library_root: str, grasped: Grasped, grid: GridPoses, cfg: Config
+) -> tuple[CollectStats, Grasped]:
+    # A Ray task: one object, as a local pool worker collects it, into `grasped`. Ray hands
+    # numpy arguments over read-only (straight from its object store); the twin's maths
+    # (scipy's rotations) wants writable ones.
+    grid = GridPoses(*(np.array(a) for a in (grid.pose_ids, grid.poses, grid.preshapes)))
+    stats = _collect_into(library_root, grasped, grasped.name, grid, cfg, None)
+    return stats, grasped
+
+
+def _collect_ray(
+    library: ObjectLibrary,
+    ds: Dataset,
+    todo: list[str],
+    grids: dict[str, GridPoses],
+    cfg: Config,
+    workers: int | None,
+    address: str | None,
+    progress: Progress | None,
+) -> list[CollectStats]:
+    """`collect` on Ray (executors.ray_map): one task per object, as the local pool spreads
+    them. The tasks return their grasps and this process writes them to the dataset as each
+    object finishes, so the workers need no shared disk for it (only the object library at
+    the same path). An interrupted train keeps the objects finished; progress moves per
+    object, not per grasp."""
+    calls = []
+    for n in todo:
+        grasped = Grasped(ds, n)
+        if progress is not None:
+            progress(n, len(grids[n]) - len(pending_poses(grasped, n, grids[n])), len(grids[n]))
+        calls.append((str(library.root), grasped, grids[n], cfg))
+    out: list[CollectStats | None] = [None] * len(todo)
+    for i, (stats, grasped) in ray_map(_collect_remote, calls, address, workers):
+        grasped.write_to(ds)
+        out[i] = stats
+        if progress is not None:
+            progress(todo[i], len(grids[todo[i]]), len(grids[todo[i]]))
+    return [s for s in out if s is not None]
 
 
 _worker_queue: object | None = None  # a worker's progress queue (set by `_worker_init`)

@@ -1,4 +1,5 @@
-"""Evaluation with the real robot's errors, and the optional Ray executor."""
+"""Evaluation with the real robot's errors, and the optional Ray executor with a stand-in
+for Ray (the real one: test_ray_executor.py)."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from activetouch.errors import ConfigError
 from activetouch.service import evaluation
 from activetouch.service.cli import main
 from activetouch.service.evaluation import error_overrides, robot_errors, run_all
+from activetouch.service.executors import RAY_LOCAL_ONLY_ENV
 
 
 def test_error_flags_become_settings():
@@ -43,10 +45,13 @@ def test_bad_error_flags_say_what_is_expected(placement, faults):
 
 def test_ray_executor_without_ray_says_how_to_get_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    monkeypatch.delenv(RAY_LOCAL_ONLY_ENV, raising=False)
     with pytest.raises(ConfigError, match="pip install"):
         run_all([], executor="ray")
     with pytest.raises(ConfigError, match="executor"):
         run_all([], executor="dask")
+    with pytest.raises(ConfigError, match="only with --executor ray"):
+        run_all([], executor="local", address="auto")
 
 
 def test_ray_executor_keeps_job_order(monkeypatch):

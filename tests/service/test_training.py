@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import pytest
 
@@ -11,7 +12,16 @@ from activetouch.planning.grid import object_grids
 from activetouch.recognition.dataset import Dataset
 from activetouch.service.cli import main
 from activetouch.service.collect import SKIPPED_ATTR, collect_object
-from activetouch.service.training import collect, dataset_meta, fit_and_save, grid_pose_ids
+from activetouch.service.executors import RAY_LOCAL_ONLY_ENV
+from activetouch.service.training import (
+    Grasped,
+    _collect_into,
+    _collect_remote,
+    collect,
+    dataset_meta,
+    fit_and_save,
+    grid_pose_ids,
+)
 from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
 from tests.conftest import small_config
@@ -90,6 +100,60 @@ def test_train_command_user_mistakes_are_one_line_errors(tmp_path, capsys):
     assert "unicorn" in err and "Traceback" not in err
     assert main(["train", "--objects", " , ", "--data", str(tmp_path)]) == 2
     assert main(["train", "--data", str(tmp_path), "--set", "grid.step_deg=abc"]) == 2
+
+
+def test_train_executor_mistakes_are_one_line_errors(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # Ray not installed: import ray fails
+    monkeypatch.delenv(RAY_LOCAL_ONLY_ENV, raising=False)
+    base = ["train", "--objects", "sphere", "--data", str(tmp_path)]
+    assert main([*base, "--executor", "ray"]) == 2
+    assert main([*base, "--address", "auto"]) == 2  # a cluster, but the local executor
+    err = capsys.readouterr().err
+    assert "pip install 'activetouch[ray]'" in err and "only with --executor ray" in err
+    assert "Traceback" not in err
+    with pytest.raises(SystemExit) as e:
+        main([*base, "--executor", "dask"])
+    assert e.value.code == 2 and "invalid choice: 'dask'" in capsys.readouterr().err
+    assert not paths.default_dataset(tmp_path).exists()  # refused before any work
+
+
+class StopCollectingError(Exception):
+    pass
+
+
+def test_collecting_away_from_the_dataset_writes_what_collecting_into_it_writes(tmp_path):
+    """A Ray task's collection (training.Grasped), run here: from a dataset holding part of an
+    object, the task resumes where the dataset stands, and what it hands back, written to the
+    dataset, is the content a collection straight into the dataset leaves."""
+    cfg = small_config()
+    lib = ObjectLibrary(paths.objects_dir(tmp_path))
+    lib.ensure_builtins(["sphere"])
+    spec = lib.get("sphere")
+    grid = object_grids({"sphere": spec.extents}, cfg.grid)["sphere"]
+
+    def stop_after_20(done: int, total: int) -> None:
+        if done == 20:
+            raise StopCollectingError
+
+    for name in ("direct", "away"):  # the same interrupted start in both
+        ds = Dataset.create_or_open(tmp_path / name, dataset_meta(cfg))
+        with open_twin(spec, cfg.sim) as twin, pytest.raises(StopCollectingError):
+            collect_object(
+                twin.hand, twin.wrist, ds, "sphere", grid, batch=8, on_grasp=stop_after_20
+            )
+    root = str(lib.root)
+    direct = _collect_into(root, Dataset.open(tmp_path / "direct"), "sphere", grid, cfg, None)
+
+    away = Dataset.open(tmp_path / "away")
+    stats, grasped = _collect_remote(root, Grasped(away, "sphere"), grid, cfg)
+    assert stats.already_done == direct.already_done > 0 and stats.skipped == direct.skipped > 0
+    assert (
+        len(grasped.batches) > 1 and away.checksum() != Dataset.open(tmp_path / "direct").checksum()
+    )
+    grasped.write_to(away)
+    assert (
+        Dataset.open(tmp_path / "away").checksum() == Dataset.open(tmp_path / "direct").checksum()
+    )
 
 
 def test_fit_uses_only_the_grid_of_the_objects_trained(trained_home, tmp_path):

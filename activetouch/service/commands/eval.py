@@ -23,6 +23,7 @@ from activetouch.service.evaluation import (
     run_all,
     summarise,
 )
+from activetouch.service.executors import check_executor
 from activetouch.service.recognize import check_request, load_trained, model_path
 from activetouch.service.report import write_report
 from activetouch.sim.objects import ObjectLibrary
@@ -30,6 +31,7 @@ from activetouch.sim.objects import ObjectLibrary
 
 def register(sub: argparse._SubParsersAction) -> None:
     from activetouch.service.cli import add_common_options
+    from activetouch.service.executors import add_executor_options
 
     p = sub.add_parser("eval", help="evaluate policies against the paper in the twin")
     p.add_argument("--objects", default=None, help="comma-separated (default: the model's)")
@@ -60,18 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="tactile faults in the twin's hand: extra pressure noise (sensor units), dead and "
         "stuck sensors per run, per-grasp probability of a spurious contact (sim.fault_*)",
     )
-    p.add_argument(
-        "--executor",
-        choices=("local", "ray"),
-        default="local",
-        help="where runs execute: local processes (default) or Ray (optional, pip install ray)",
-    )
-    p.add_argument(
-        "--address",
-        default=None,
-        help="--executor ray: the cluster to join (e.g. ray://head:10001 or auto; "
-        "default: start a local Ray)",
-    )
+    add_executor_options(p, "recognitions")
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -94,6 +85,7 @@ def evaluate(
     address: str | None = None,
 ) -> dict:
     cfg = load_config(cfg_path, overrides)
+    check_executor(executor, address)
     budget = max_moves if max_moves is not None else cfg.session.max_moves
     if not stop_when_confident:
         cfg.session.confidence = float("inf")  # no early stop: every run spends the budget

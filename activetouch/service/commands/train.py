@@ -19,6 +19,7 @@ from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
 
 def register(sub: argparse._SubParsersAction) -> None:
     from activetouch.service.cli import add_common_options
+    from activetouch.service.executors import add_executor_options
 
     p = sub.add_parser("train", help="collect training grasps in the twin and fit the model")
     p.add_argument(
@@ -29,6 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", metavar="DIR", default=None, help="model directory to write")
     p.add_argument("--dataset", metavar="DIR", default=None, help="dataset directory")
     p.add_argument("--workers", type=int, default=None, help="parallel collection processes")
+    add_executor_options(p, "the collections (one per object)")
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -51,12 +53,16 @@ def train(
     dataset: Path | None,
     workers: int | None,
     console: Console,
+    executor: str = "local",
+    address: str | None = None,
 ) -> Path:
+    from activetouch.service.executors import check_executor
     from activetouch.service.training import collect, dataset_variant, fit_and_save
 
     cfg = load_config(cfg_path, overrides)
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {workers}")
+    check_executor(executor, address)
     library = ObjectLibrary(paths.objects_dir(root))
     with console.status("preparing the object library"):
         library.ensure_builtins()
@@ -79,7 +85,9 @@ def train(
                 tasks[name] = bar.add_task(name, total=total)
             bar.update(tasks[name], completed=done)
 
-        stats = collect(library, dataset, names, cfg, workers=workers, progress=on_progress)
+        stats = collect(
+            library, dataset, names, cfg, workers, on_progress, executor=executor, address=address
+        )
     t_collect = time.perf_counter() - t0
     with console.status("fitting the classifier and the observation model"):
         t1 = time.perf_counter()
@@ -165,5 +173,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.dataset) if args.dataset else None,
         args.workers,
         Console(),
+        args.executor,
+        args.address,
     )
     return 0
