@@ -535,32 +535,20 @@ def build_observation_model(
     P = len(rep)
 
     # Edges p -> q (q != p, ascending) and their discretised actions.
-    if P >= 2:
-        src = np.repeat(np.arange(P, dtype=np.int64), P - 1)
-        off = np.tile(np.arange(P - 1, dtype=np.int64), P)
-        dst = off + (off >= src)
-    else:
-        src = dst = _empty_i64()
     pooled = np.concatenate([pose_xyz, pose_quat], axis=1)
-    delta = relative_pose(pooled[src], pooled[dst]) if len(src) else np.zeros((0, 7))
     absolute = cfg.action_frame == "absolute"
+    pose_action = _empty_i64()
     if absolute:
         # The action of p -> q is q's own cell: pooled poses have distinct cells, so A = P.
         akeys, _, pose_action = _encode_rows(_pose_keys(pooled, tcell, qcell))
-        edge_action = pose_action[dst] if len(dst) else _empty_i64()
+        edges = _all_pairs_edges(pooled, tcell, qcell, absolute_keys=(akeys, pose_action))
     else:
-        akeys, _, edge_action = _encode_rows(_pose_keys(delta, tcell, qcell))
+        edges = _all_pairs_edges(pooled, tcell, qcell)
+    edge_action, dst, akeys, action_cost, edge_cost, max_t = edges
     A = len(akeys)
     action_delta = np.concatenate(
         [akeys[:, :3].astype(np.float64) * tcell, akeys[:, 3:].astype(np.float64) * qcell], axis=1
     )
-    max_t = float(np.linalg.norm(delta[:, :3], axis=1).max()) if len(delta) else 0.0
-    move_cost = movement_cost(delta, max_t)
-    n_in = np.bincount(edge_action, minlength=A)
-    action_cost = np.bincount(edge_action, weights=move_cost, minlength=A) / np.maximum(n_in, 1)
-    # Relative: the paper's c_m(a) of the edge's action (derived, not stored); absolute: the
-    # exact move's own cost.
-    edge_cost = move_cost if absolute else np.zeros(0)
     edge_ptr = np.arange(P + 1, dtype=np.int64) * max(P - 1, 0)
 
     # Cells and bins of every training triangle.
@@ -615,7 +603,7 @@ def build_observation_model(
             pi, pj = grasp_pose[ii], grasp_pose[jj]
             ok = pi != pj
             ii, jj, pi, pj = ii[ok], jj[ok], pi[ok], pj[ok]
-            act = edge_action[pi * (P - 1) + pj - (pj > pi)]
+            act = edge_action[pi * (P - 1) + pj - (pj > pi)].astype(np.int64)
         if len(ii) == 0:
             continue
         n_pairs = len(ii)
@@ -665,8 +653,8 @@ def build_observation_model(
         action_delta=action_delta,
         action_cost=action_cost,
         edge_ptr=edge_ptr,
-        edge_action=edge_action.astype(edge_index_dtype(len(dst), max(A, P))),
-        edge_target=dst.astype(edge_index_dtype(len(dst), max(A, P))),
+        edge_action=edge_action,
+        edge_target=dst,
         out_cell=out_cell,
         out_ptr=out_ptr,
         out_bin=out_bin,
@@ -727,6 +715,97 @@ def _absolute_pairs(
     aa = np.repeat(pose_action[q_of], n_g)
     keep = grasp_pose[ii] != grasp_pose[jj]
     return ii[keep], jj[keep], aa[keep].astype(np.int64)
+
+
+def _all_pairs_edges(
+    pooled: np.ndarray,
+    tcell: float,
+    qcell: float,
+    absolute_keys: tuple[np.ndarray, np.ndarray] | None = None,
+    chunk_edges: int = 1_000_000,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
+    """Every ordered pair p -> q of pooled poses (q ascending, p skipped): (edge_action,
+    edge_target, action keys (A, 7), action_cost, edge_cost, longest translation).
+
+    Built a block of source poses at a time, so no pass holds every pair's relative pose
+    (E x 7 doubles: 1.4 GB at 5000 poses). Relative actions are the pairs' discretised keys,
+    ranked as `_encode_rows` ranks them (lexicographically); `absolute_keys` (pooled poses'
+    keys, each pose's action) makes the action of p -> q q's own. A cost is accumulated in
+    edge order, as one `bincount` over all edges would, so the model is the same to the bit
+    whatever the block size. `edge_cost` (the exact move's c_m) only for absolute actions."""
+    P = len(pooled)
+    E = P * (P - 1)
+    dtype = edge_index_dtype(E, E)
+    if P < 2:
+        keys = absolute_keys[0] if absolute_keys is not None else _empty_i64(0, 7)
+        none = _empty_i64().astype(dtype)
+        return none, none, keys, np.zeros(len(keys)), np.zeros(0), 0.0
+    blocks = np.array_split(np.arange(P), max(1, E // chunk_edges))
+
+    def block(b: np.ndarray) -> tuple[int, int, np.ndarray, np.ndarray]:
+        src = np.repeat(b, P - 1)
+        off = np.tile(np.arange(P - 1), len(b))
+        dst = off + (off >= src)
+        return b[0] * (P - 1), (b[-1] + 1) * (P - 1), dst, relative_pose(pooled[src], pooled[dst])
+
+    # Pass 1: the longest translation (c_m's normaliser) and each key column's range.
+    max_t = 0.0
+    lo = np.full(7, np.iinfo(np.int64).max)
+    hi = np.full(7, np.iinfo(np.int64).min)
+    for b in blocks:
+        *_, d = block(b)
+        max_t = max(max_t, float(np.linalg.norm(d[:, :3], axis=1).max()))
+        if absolute_keys is None:
+            k = _pose_keys(d, tcell, qcell)
+            lo, hi = np.minimum(lo, k.min(axis=0)), np.maximum(hi, k.max(axis=0))
+    # Pass 2: each edge's action id and target.
+    edge_action = np.empty(E, dtype=dtype)
+    edge_target = np.empty(E, dtype=dtype)
+    span = np.maximum(hi - lo + 1, 1)
+    if absolute_keys is not None:
+        akeys, pose_action = absolute_keys
+        for b in blocks:
+            a, z, dst, _ = block(b)
+            edge_action[a:z], edge_target[a:z] = pose_action[dst], dst
+    elif np.sum(np.log2(span.astype(np.float64))) >= 62:  # keys too wide for one int64 code
+        k = np.concatenate([_pose_keys(block(b)[3], tcell, qcell) for b in blocks])
+        akeys, _, ids = _encode_rows(k)
+        edge_action[:] = ids
+        for b in blocks:
+            a, z, dst, _ = block(b)
+            edge_target[a:z] = dst
+    else:
+        # A mixed-radix code over the global ranges keeps the rows' lexicographic order.
+        local: list[tuple[int, int, np.ndarray]] = []
+        for b in blocks:
+            a, z, dst, d = block(b)
+            code = np.zeros(z - a, dtype=np.int64)
+            for k, l0, sp in zip(_pose_keys(d, tcell, qcell).T, lo, span, strict=True):
+                code = code * sp + (k - l0)
+            u, inv = np.unique(code, return_inverse=True)
+            edge_action[a:z], edge_target[a:z] = inv, dst
+            local.append((a, z, u))
+        every = np.sort(np.concatenate([u for *_, u in local]))
+        uniq = every[np.concatenate([[True], every[1:] != every[:-1]])]
+        for a, z, u in local:
+            edge_action[a:z] = np.searchsorted(uniq, u).astype(dtype)[edge_action[a:z]]
+        akeys = np.empty((len(uniq), 7), dtype=np.int64)
+        rest = uniq.copy()
+        for col in range(6, -1, -1):
+            akeys[:, col] = rest % span[col] + lo[col]
+            rest //= span[col]
+    # Pass 3: costs, accumulated in edge order.
+    A = len(akeys)
+    sums = np.zeros(A)
+    edge_cost = np.empty(E) if absolute_keys is not None else np.zeros(0)
+    for b in blocks:
+        a, z, _, d = block(b)
+        cost = movement_cost(d, max_t)
+        np.add.at(sums, edge_action[a:z], cost)
+        if absolute_keys is not None:
+            edge_cost[a:z] = cost
+    n_in = np.bincount(edge_action, minlength=A)
+    return edge_action, edge_target, akeys, sums / np.maximum(n_in, 1), edge_cost, max_t
 
 
 def _drop_empty(

@@ -487,3 +487,44 @@ def test_edge_cost_is_the_cost_of_the_move() -> None:
         build_observation_model(
             objs, SPEC, ObservationConfig(granularity="triangle", action_frame="polar")
         )
+
+
+@pytest.mark.parametrize("frame", ["relative", "absolute"])
+def test_edges_built_in_blocks_are_the_edges_built_at_once(frame: str, monkeypatch) -> None:
+    """The builder keys the all-pairs edges a block of source poses at a time (to keep memory
+    bounded at thousands of poses); any block size gives the same model to the bit."""
+    import activetouch.planning.observation_model as om
+
+    rng = np.random.default_rng(5)
+    P = 40
+    xyz = rng.uniform(-0.3, 0.3, (P, 3))
+    quat = Rotation.random(P, random_state=6).as_quat()
+    objs = [
+        (f"o{k}", np.concatenate([xyz, quat], axis=1)[k::2], [tri([0.1, 0.1, 1.1])] * (P // 2))
+        for k in range(2)
+    ]
+    cfg = ObservationConfig(granularity="triangle", action_frame=frame)
+    whole = build_observation_model(objs, SPEC, cfg)
+    assert whole.edge_action.dtype == np.int32 and whole.edge_target.dtype == np.int32
+    calls = []
+
+    def in_blocks(*a, **k):
+        calls.append(1)
+        return om_all_pairs(*a, **{**k, "chunk_edges": 97})
+
+    om_all_pairs = om._all_pairs_edges
+    monkeypatch.setattr(om, "_all_pairs_edges", in_blocks)
+    blocks = build_observation_model(objs, SPEC, cfg)
+    assert calls and P * (P - 1) // 97 > 10
+    for name, arr in whole.arrays().items():
+        np.testing.assert_array_equal(getattr(blocks, name), arr, err_msg=name)
+    assert blocks.max_translation == whole.max_translation
+    # Relative actions: the discretised pose of q in p's frame, edge by edge.
+    if frame == "relative":
+        src = np.repeat(np.arange(whole.n_poses), whole.n_poses - 1)
+        pooled = np.concatenate([whole.pose_xyz, whole.pose_quat], axis=1)
+        delta = relative_pose(pooled[src], pooled[whole.edge_target])
+        want = np.concatenate(
+            [discretise(delta[:, :3], 0.06), discretise(delta[:, 3:], 0.05)], axis=1
+        )
+        np.testing.assert_allclose(whole.action_delta[whole.edge_action], want, atol=1e-12)
