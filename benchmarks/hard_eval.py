@@ -15,6 +15,7 @@ invocations (e.g. seed chunks) combine with --from-json.
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import sys
 from collections.abc import Iterable
@@ -99,6 +100,67 @@ def pair_rows(
     return out
 
 
+def read_runs(path: str) -> dict[str, Any]:
+    """A saved sweep (`--json`), plain or gzipped (.gz)."""
+    raw = Path(path).read_bytes()
+    return json.loads(gzip.decompress(raw) if path.endswith(".gz") else raw)
+
+
+def write_runs(path: str, doc: dict[str, Any]) -> None:
+    data = (json.dumps(doc) + "\n").encode()
+    Path(path).write_bytes(gzip.compress(data, mtime=0) if path.endswith(".gz") else data)
+
+
+def plot(runs: list[dict[str, Any]], arms: list[str], budget: int, path: str) -> None:
+    """Per object, each arm's final accuracy; beside it, the paired differences in grasps to
+    first correct of each arm against greedy (or the first arm)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    objects = sorted({r["object"] for r in runs})
+    fig, (ax, bx) = plt.subplots(
+        1, 2, figsize=(13, 0.28 * len(objects) + 2), gridspec_kw={"width_ratios": [3, 2]}
+    )
+    h = 0.8 / len(arms)
+    y = np.arange(len(objects))
+    for i, a in enumerate(arms):
+        acc = [
+            np.mean([r["final_correct"] for r in runs if r["arm"] == a and r["object"] == o])
+            if any(r["arm"] == a and r["object"] == o for r in runs)
+            else np.nan
+            for o in objects
+        ]
+        ax.barh(y + (i - (len(arms) - 1) / 2) * h, acc, height=h, label=a)
+    ax.axvline(0.8, color="k", lw=0.8, ls="--")
+    ax.set_yticks(y, objects, fontsize=7)
+    ax.invert_yaxis()
+    ax.set_xlim(0, 1)
+    ax.set_xlabel("final accuracy (dashed: the 80 % floor)")
+    ax.legend(fontsize=7, loc="lower right")
+    base = "greedy" if "greedy" in arms else arms[0]
+    for r in pair_rows(runs, [(a, base) for a in arms if a != base], budget):
+        table: dict[str, dict[tuple[str, int], int]] = {}
+        for x in runs:
+            table.setdefault(x["arm"], {})[(x["object"], x["seed"])] = moves_capped(x, budget)
+        keys = sorted(set(table[r["arm"]]) & set(table[base]))
+        d = [table[base][k] - table[r["arm"]][k] for k in keys]
+        lo, hi = r["ci95"]
+        bx.hist(
+            d,
+            bins=np.arange(-budget - 0.5, budget + 1.5),
+            alpha=0.5,
+            label=f"{r['arm']}: {r['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}], n={r['pairs']}",
+        )
+    bx.set_xlabel(f"grasps saved against {base} per (object, seed) pair")
+    bx.set_ylabel("pairs")
+    bx.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def print_tables(runs: list[dict[str, Any]], arms: list[str], budget: int) -> None:
     seeds = sorted({r["seed"] for r in runs})
     objects = sorted({r["object"] for r in runs})
@@ -167,7 +229,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--executor", choices=("local", "ray"), default="local")
     ap.add_argument("--address", default=None, help="--executor ray: the cluster")
     ap.add_argument("--json", default=None, help="write the runs here")
-    ap.add_argument("--from-json", default=None, help="comma list of saved runs: tables only")
+    ap.add_argument(
+        "--from-json", default=None, help="comma list of saved runs (.json or .json.gz): tables"
+    )
+    ap.add_argument("--figure", default=None, help="also draw per-object accuracy here (PNG)")
     args = ap.parse_args(argv)
 
     if args.from_json:
@@ -175,11 +240,13 @@ def main(argv: list[str] | None = None) -> int:
         arms: list[str] = []
         budget = args.max_moves
         for f in args.from_json.split(","):
-            doc = json.loads(Path(f).read_text())
+            doc = read_runs(f)
             runs += doc["runs"]
             arms += [a for a in doc["arms"] if a not in arms]
             budget = doc["max_moves"]
         print_tables(runs, arms, budget)
+        if args.figure:
+            plot(runs, arms, budget, args.figure)
         return 0
 
     root = paths.data_dir(args.data)
@@ -212,8 +279,10 @@ def main(argv: list[str] | None = None) -> int:
     labels = [a[0] for a in arms]
     if args.json:
         doc = {"arms": labels, "max_moves": args.max_moves, "argv": argv or sys.argv[1:]}
-        Path(args.json).write_text(json.dumps({**doc, "runs": public}) + "\n")
+        write_runs(args.json, {**doc, "runs": public})
     print_tables(public, labels, args.max_moves)
+    if args.figure:
+        plot(public, labels, args.max_moves, args.figure)
     return 0
 
 
