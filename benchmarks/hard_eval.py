@@ -100,6 +100,35 @@ def pair_rows(
     return out
 
 
+def why_rows(runs: list[dict[str, Any]], arms: Iterable[str]) -> list[dict[str, Any]]:
+    """Measurements behind "the planners confirm their belief": per arm, the top class's
+    probability at the end of runs that end wrong and right, how often the label changes in a
+    run, and how many distinct poses the arm chose for an object over all its runs (the first,
+    random grasp left out)."""
+    out = []
+    for a in arms:
+        rs = [r for r in runs if r["arm"] == a]
+        if not rs:
+            continue
+        wrong = [r["final_probability"] for r in rs if not r["final_correct"]]
+        right = [r["final_probability"] for r in rs if r["final_correct"]]
+        changes = [sum(np.array(r["labels"][1:]) != np.array(r["labels"][:-1])) for r in rs]
+        poses: dict[str, set[int]] = {}
+        for r in rs:
+            poses.setdefault(r["object"], set()).update(r["pose_ids"][1:])
+        out.append(
+            {
+                "arm": a,
+                "p_top_wrong": float(np.mean(wrong)) if wrong else float("nan"),
+                "p_top_right": float(np.mean(right)) if right else float("nan"),
+                "label_changes": float(np.mean(changes)),
+                "distinct_poses": float(np.mean([len(v) for v in poses.values()])),
+                "runs_per_object": len(rs) / max(len(poses), 1),
+            }
+        )
+    return out
+
+
 def read_runs(path: str) -> dict[str, Any]:
     """A saved sweep (`--json`), plain or gzipped (.gz)."""
     raw = Path(path).read_bytes()
@@ -192,6 +221,17 @@ def print_tables(runs: list[dict[str, Any]], arms: list[str], budget: int) -> No
         print(
             f"| {r['arm']} | {r['vs']} | {r['pairs']} | {r['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}] "
             f"| {r['wins']} / {r['ties']} / {r['losses']} | {r['sign_p']:.3f} |"
+        )
+    print(
+        "\n| arm | p(top) at the end, runs ending wrong | ending right | label changes per run | "
+        "distinct poses chosen per object (all its runs) |"
+    )
+    print("|---|---|---|---|---|")
+    for r in why_rows(runs, arms):
+        print(
+            f"| {r['arm']} | {r['p_top_wrong']:.2f} | {r['p_top_right']:.2f} | "
+            f"{r['label_changes']:.2f} | {r['distinct_poses']:.0f} ({r['runs_per_object']:.0f} "
+            "runs) |"
         )
     fams = sorted({family(o) for o in objects})
     print("\nPer family: final accuracy / mean grasps to first correct\n")
