@@ -44,7 +44,7 @@ Rows are normalised and stored as cumulative probabilities (outcomes ascending w
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -717,6 +717,41 @@ def _absolute_pairs(
     return ii[keep], jj[keep], aa[keep].astype(np.int64)
 
 
+def edge_blocks(P: int, chunk_edges: int) -> Iterator[tuple[int, int, np.ndarray, np.ndarray]]:
+    """The all-pairs edges p -> q (q != p, ascending; CSR by p) in blocks of source poses of
+    about `chunk_edges` edges each: (first edge id, end edge id, sources, targets)."""
+    for b in np.array_split(np.arange(P), max(1, P * (P - 1) // chunk_edges)):
+        src = np.repeat(b, P - 1)
+        off = np.tile(np.arange(P - 1), len(b))
+        yield int(b[0]) * (P - 1), (int(b[-1]) + 1) * (P - 1), src, off + (off >= src)
+
+
+def rank_edge_codes(
+    P: int,
+    code_of: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    chunk_edges: int,
+    dtype: type,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(edge_action, edge_target, distinct codes ascending) of the all-pairs edges of P >= 2
+    poses, where an edge's action is the rank of its int64 code `code_of(sources, targets)`
+    among all edges' distinct codes. A block at a time (`edge_blocks`): each block's edges get
+    block-local ids, then mapped to the global ranks, so no pass holds every edge's code."""
+    E = P * (P - 1)
+    edge_action = np.empty(E, dtype=dtype)
+    edge_target = np.empty(E, dtype=dtype)
+    local: list[tuple[int, int, np.ndarray]] = []
+    for a, z, src, dst in edge_blocks(P, chunk_edges):
+        u, inv = np.unique(code_of(src, dst), return_inverse=True)
+        edge_action[a:z], edge_target[a:z] = inv, dst
+        local.append((a, z, u))
+    every = np.sort(np.concatenate([u for *_, u in local]))
+    uniq = every[np.concatenate([[True], every[1:] != every[:-1]])]
+    del every
+    for a, z, u in local:
+        edge_action[a:z] = np.searchsorted(uniq, u).astype(dtype)[edge_action[a:z]]
+    return edge_action, edge_target, uniq
+
+
 def _all_pairs_edges(
     pooled: np.ndarray,
     tcell: float,
@@ -727,12 +762,13 @@ def _all_pairs_edges(
     """Every ordered pair p -> q of pooled poses (q ascending, p skipped): (edge_action,
     edge_target, action keys (A, 7), action_cost, edge_cost, longest translation).
 
-    Built a block of source poses at a time, so no pass holds every pair's relative pose
-    (E x 7 doubles: 1.4 GB at 5000 poses). Relative actions are the pairs' discretised keys,
-    ranked as `_encode_rows` ranks them (lexicographically); `absolute_keys` (pooled poses'
-    keys, each pose's action) makes the action of p -> q q's own. A cost is accumulated in
-    edge order, as one `bincount` over all edges would, so the model is the same to the bit
-    whatever the block size. `edge_cost` (the exact move's c_m) only for absolute actions."""
+    Built a block of source poses at a time (`edge_blocks`), so no pass holds every pair's
+    relative pose (E x 7 doubles: 1.4 GB at 5000 poses). Relative actions are the pairs'
+    discretised keys, ranked as `_encode_rows` ranks them (lexicographically); `absolute_keys`
+    (pooled poses' keys, each pose's action) makes the action of p -> q q's own. A cost is
+    accumulated in edge order, as one `bincount` over all edges would, so the model is the same
+    to the bit whatever the block size. `edge_cost` (the exact move's c_m) only for absolute
+    actions."""
     P = len(pooled)
     E = P * (P - 1)
     dtype = edge_index_dtype(E, E)
@@ -740,55 +776,44 @@ def _all_pairs_edges(
         keys = absolute_keys[0] if absolute_keys is not None else _empty_i64(0, 7)
         none = _empty_i64().astype(dtype)
         return none, none, keys, np.zeros(len(keys)), np.zeros(0), 0.0
-    blocks = np.array_split(np.arange(P), max(1, E // chunk_edges))
 
-    def block(b: np.ndarray) -> tuple[int, int, np.ndarray, np.ndarray]:
-        src = np.repeat(b, P - 1)
-        off = np.tile(np.arange(P - 1), len(b))
-        dst = off + (off >= src)
-        return b[0] * (P - 1), (b[-1] + 1) * (P - 1), dst, relative_pose(pooled[src], pooled[dst])
+    def rel(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+        return relative_pose(pooled[src], pooled[dst])
 
     # Pass 1: the longest translation (c_m's normaliser) and each key column's range.
     max_t = 0.0
     lo = np.full(7, np.iinfo(np.int64).max)
     hi = np.full(7, np.iinfo(np.int64).min)
-    for b in blocks:
-        *_, d = block(b)
+    for _, _, src, dst in edge_blocks(P, chunk_edges):
+        d = rel(src, dst)
         max_t = max(max_t, float(np.linalg.norm(d[:, :3], axis=1).max()))
         if absolute_keys is None:
             k = _pose_keys(d, tcell, qcell)
             lo, hi = np.minimum(lo, k.min(axis=0)), np.maximum(hi, k.max(axis=0))
     # Pass 2: each edge's action id and target.
-    edge_action = np.empty(E, dtype=dtype)
-    edge_target = np.empty(E, dtype=dtype)
     span = np.maximum(hi - lo + 1, 1)
     if absolute_keys is not None:
         akeys, pose_action = absolute_keys
-        for b in blocks:
-            a, z, dst, _ = block(b)
+        edge_action = np.empty(E, dtype=dtype)
+        edge_target = np.empty(E, dtype=dtype)
+        for a, z, _, dst in edge_blocks(P, chunk_edges):
             edge_action[a:z], edge_target[a:z] = pose_action[dst], dst
     elif np.sum(np.log2(span.astype(np.float64))) >= 62:  # keys too wide for one int64 code
-        k = np.concatenate([_pose_keys(block(b)[3], tcell, qcell) for b in blocks])
-        akeys, _, ids = _encode_rows(k)
-        edge_action[:] = ids
-        for b in blocks:
-            a, z, dst, _ = block(b)
-            edge_target[a:z] = dst
+        blocks = list(edge_blocks(P, chunk_edges))
+        akeys, _, ids = _encode_rows(
+            np.concatenate([_pose_keys(rel(src, dst), tcell, qcell) for *_, src, dst in blocks])
+        )
+        edge_action = ids.astype(dtype)
+        edge_target = np.concatenate([dst for *_, dst in blocks]).astype(dtype)
     else:
         # A mixed-radix code over the global ranges keeps the rows' lexicographic order.
-        local: list[tuple[int, int, np.ndarray]] = []
-        for b in blocks:
-            a, z, dst, d = block(b)
-            code = np.zeros(z - a, dtype=np.int64)
-            for k, l0, sp in zip(_pose_keys(d, tcell, qcell).T, lo, span, strict=True):
+        def code_of(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+            code = np.zeros(len(src), dtype=np.int64)
+            for k, l0, sp in zip(_pose_keys(rel(src, dst), tcell, qcell).T, lo, span, strict=True):
                 code = code * sp + (k - l0)
-            u, inv = np.unique(code, return_inverse=True)
-            edge_action[a:z], edge_target[a:z] = inv, dst
-            local.append((a, z, u))
-        every = np.sort(np.concatenate([u for *_, u in local]))
-        uniq = every[np.concatenate([[True], every[1:] != every[:-1]])]
-        for a, z, u in local:
-            edge_action[a:z] = np.searchsorted(uniq, u).astype(dtype)[edge_action[a:z]]
+            return code
+
+        edge_action, edge_target, uniq = rank_edge_codes(P, code_of, chunk_edges, dtype)
         akeys = np.empty((len(uniq), 7), dtype=np.int64)
         rest = uniq.copy()
         for col in range(6, -1, -1):
@@ -798,9 +823,8 @@ def _all_pairs_edges(
     A = len(akeys)
     sums = np.zeros(A)
     edge_cost = np.empty(E) if absolute_keys is not None else np.zeros(0)
-    for b in blocks:
-        a, z, _, d = block(b)
-        cost = movement_cost(d, max_t)
+    for a, z, src, dst in edge_blocks(P, chunk_edges):
+        cost = movement_cost(rel(src, dst), max_t)
         np.add.at(sums, edge_action[a:z], cost)
         if absolute_keys is not None:
             edge_cost[a:z] = cost

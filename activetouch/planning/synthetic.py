@@ -34,6 +34,7 @@ from activetouch.planning.observation_model import (
     ObservationModel,
     concat_csr_rows,
     edge_index_dtype,
+    rank_edge_codes,
 )
 from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
 
@@ -144,14 +145,8 @@ def _rows(keys: np.ndarray, outs: np.ndarray, n_out: int) -> tuple[np.ndarray, .
 _KEY_BASE, _KEY_OFFSET = 256, 128
 
 
-def _pair_action_keys(
-    xyz: np.ndarray, quat: np.ndarray, sources: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """(action key, target) of every edge out of `sources` (targets ascending, self skipped)."""
-    P = len(xyz)
-    src = np.repeat(sources, P - 1)
-    off = np.tile(np.arange(P - 1), len(sources))
-    tgt = off + (off >= src)
+def _action_keys(xyz: np.ndarray, quat: np.ndarray, src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+    """The action key of each edge src -> tgt: its discretised relative pose's 7 cells."""
     t_rel = _rotate_inverse(quat[src], xyz[tgt] - xyz[src])
     q_rel = _quat_conj_mul(quat[src], quat[tgt])
     q_rel *= np.where(q_rel[:, 3:4] < 0, -1.0, 1.0)  # q and -q are one rotation
@@ -159,37 +154,7 @@ def _pair_action_keys(
     for v, cell in ((t_rel, TRANSLATION_CELL_M), (q_rel, QUATERNION_CELL)):
         for col in np.trunc(v / cell).astype(np.int64).T:
             key = key * _KEY_BASE + (col + _KEY_OFFSET)
-    return key, tgt
-
-
-def _all_pairs_actions(
-    xyz: np.ndarray, quat: np.ndarray, chunk_edges: int = 250_000
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(edge_action, edge_target, sorted distinct action keys) of all ordered pairs, built a
-    block of source poses at a time so that no pass holds every pair's pose (25 M x 7 doubles
-    at 5000 poses): each block's edges get block-local action ids, which are then mapped to
-    their rank among all blocks' distinct keys."""
-    P = len(xyz)
-    E = P * (P - 1)
-    blocks = np.array_split(np.arange(P), max(1, E // chunk_edges))
-    dtype = edge_index_dtype(E, E)
-    edge_action = np.empty(E, dtype=dtype)
-    edge_target = np.empty(E, dtype=dtype)
-    spans, local_keys = [], []
-    for b in blocks:
-        key, tgt = _pair_action_keys(xyz, quat, b)
-        lo, hi = b[0] * (P - 1), (b[-1] + 1) * (P - 1)
-        u, inv = np.unique(key, return_inverse=True)
-        edge_action[lo:hi] = inv
-        edge_target[lo:hi] = tgt
-        spans.append((lo, hi))
-        local_keys.append(u)
-    every = np.sort(np.concatenate(local_keys))
-    uniq = every[np.concatenate([[True], every[1:] != every[:-1]])]
-    del every
-    for (lo, hi), u in zip(spans, local_keys, strict=True):
-        edge_action[lo:hi] = np.searchsorted(uniq, u).astype(dtype)[edge_action[lo:hi]]
-    return edge_action, edge_target, uniq
+    return key
 
 
 def _return_freed_memory() -> None:
@@ -284,7 +249,14 @@ def synthetic_problem(
         quat[ids] = _look_at_quaternions(-dirs[pick], rolls[pick])
 
     # Edges: every ordered pair of distinct poses; actions = discretised relative poses.
-    edge_action, tgt, keys = _all_pairs_actions(xyz, quat)
+    # A block of source poses at a time (`rank_edge_codes`): every pair's relative pose at once
+    # would take 25 M x 7 doubles at 5000 poses.
+    edge_action, tgt, keys = rank_edge_codes(
+        P,
+        lambda src, dst: _action_keys(xyz, quat, src, dst),
+        250_000,
+        edge_index_dtype(P * (P - 1), P * (P - 1)),
+    )
     A = len(keys)
     action_delta = _decode_action_keys(keys)
     del keys
