@@ -269,10 +269,10 @@ def _sample_outcome(
     without data cannot make another class's observation look certain.
     `inv_temp`: 1 / planner.belief_temperature; below 1 the class is drawn from a flattened
     p(y|h)^inv_temp (see `_tempered`)."""
-    tally_ptr, tally_out, tally_cum = m[8], m[9], m[10]
-    marg_ptr, marg_out, marg_cum = m[12], m[13], m[14]
+    tkey, tally_ptr, tally_out, tally_cum = m[7], m[8], m[9], m[10]
+    mkey, marg_ptr, marg_out, marg_cum = m[11], m[12], m[13], m[14]
     n_cells = m[16]
-    tkey, trow, mkey, mrow = m[17], m[18], m[19], m[20]
+    trow, mrow = m[17], m[18]
     n_classes = kern[7]
     if per_class:
         p = _tempered(_proba_scores(kern, hist, S), inv_temp)
@@ -557,10 +557,8 @@ def _run_simulations(
         _mc,
         _na,
         _nc,
-        _tk2,
-        _tr2,
-        _mk2,
-        _mr2,
+        _tr,
+        _mr,
         action_cost,
     ) = m
     (
@@ -864,6 +862,8 @@ def model_tuple(model: ObservationModel) -> tuple:
     def f64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float64)
 
+    # Eq. 4's lookups use the rows re-keyed by (action, cell, class) (`rows_by_action`): the
+    # keys stand where the model's own would, the row each points to comes after.
     tkey, trow, mkey, mrow = model.rows_by_action
     return (
         i64(model.edge_ptr),
@@ -873,19 +873,17 @@ def model_tuple(model: ObservationModel) -> tuple:
         i64(model.out_cell),
         i64(model.out_ptr),
         i64(model.out_bin),
-        i64(model.tally_key),
+        tkey,
         i64(model.tally_ptr),
         i64(model.tally_out),
         f64(model.tally_cum),
-        i64(model.marg_key),
+        mkey,
         i64(model.marg_ptr),
         i64(model.marg_out),
         f64(model.marg_cum),
         np.int64(model.n_actions),
         np.int64(model.n_cells),
-        tkey,
         trow,
-        mkey,
         mrow,
         f64(model.action_cost),
     )
