@@ -85,7 +85,8 @@ def arm_rows(runs: list[dict[str, Any]], arms: Iterable[str], budget: int) -> li
 def pair_rows(
     runs: list[dict[str, Any]], pairs: list[tuple[str, str]], budget: int, subset: str = "all"
 ) -> list[dict[str, Any]]:
-    """Paired by (object, seed): baseline - arm moves (positive: the arm needs fewer)."""
+    """Paired by (object, seed): baseline - arm moves (positive: the arm needs fewer); each
+    row also holds the differences themselves (`diffs`)."""
     table: dict[str, dict[tuple[str, int], int]] = {}
     for r in runs:
         table.setdefault(r["arm"], {})[(r["object"], r["seed"])] = moves_capped(r, budget)
@@ -96,7 +97,7 @@ def pair_rows(
         keys = sorted(set(table[arm]) & set(table[base]))
         d = np.array([table[base][k] - table[arm][k] for k in keys], dtype=float)
         st = paired_stats(d, np.random.default_rng(0))  # fixed: same runs, same interval
-        out.append({"arm": arm, "vs": base, "objects": subset, "pairs": len(d), **st})
+        out.append({"arm": arm, "vs": base, "objects": subset, "pairs": len(d), "diffs": d, **st})
     return out
 
 
@@ -170,14 +171,9 @@ def plot(runs: list[dict[str, Any]], arms: list[str], budget: int, path: str) ->
     ax.legend(fontsize=7, loc="lower right")
     base = "greedy" if "greedy" in arms else arms[0]
     for r in pair_rows(runs, [(a, base) for a in arms if a != base], budget):
-        table: dict[str, dict[tuple[str, int], int]] = {}
-        for x in runs:
-            table.setdefault(x["arm"], {})[(x["object"], x["seed"])] = moves_capped(x, budget)
-        keys = sorted(set(table[r["arm"]]) & set(table[base]))
-        d = [table[base][k] - table[r["arm"]][k] for k in keys]
         lo, hi = r["ci95"]
         bx.hist(
-            d,
+            r["diffs"],
             bins=np.arange(-budget - 0.5, budget + 1.5),
             alpha=0.5,
             label=f"{r['arm']}: {r['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}], n={r['pairs']}",
