@@ -469,16 +469,36 @@ def test_both_granularities_plan() -> None:
         assert 0.0 <= res.value <= 1.0
 
 
+def _sampler_at(synth, root: int) -> tuple:
+    """What the compiled Eq. 4 sampler takes after the training grasp at `root`: (model tuple,
+    kernel tuple, histogram counts, p(y | h), incremental scores)."""
+    kern = mcts.kernel_tuple(synth.kernel)
+    counts, _ = _root(synth, root)
+    S = np.empty(kern[1].shape[0] + 2)
+    mcts._scores_init(kern, counts, S)
+    return model_tuple(synth.model), kern, counts, synth.kernel.proba(counts), S
+
+
+def _draws(n: int, *args) -> np.ndarray:
+    """`n` outcomes of `mcts._sample_outcome(*args)`."""
+    return np.array([mcts._sample_outcome(*args) for _ in range(n)])
+
+
+def _classes_per_pair(m: ObservationModel) -> dict[tuple[int, int], int]:
+    """How many classes have a tally row for each (cell, action)."""
+    A, C = m.n_actions, m.n_cells
+    by_pair: dict[tuple[int, int], int] = {}
+    for k in m.tally_key:
+        key = (int(k % C), int(k // C % A))
+        by_pair[key] = by_pair.get(key, 0) + 1
+    return by_pair
+
+
 def test_sampled_observations_follow_eq4(synth) -> None:
     """The compiled sampler's outcome frequencies match the reference p(z' | z, a) of Eq. 4
     (tally rows, marginal fallback, and nothing when no class has data)."""
     m = synth.model
-    kern = mcts.kernel_tuple(synth.kernel)
-    mt = model_tuple(m)
-    counts, _ = _root(synth, 3)
-    p_y = synth.kernel.proba(counts)
-    S = np.empty(kern[1].shape[0] + 2)
-    mcts._scores_init(kern, counts, S)
+    mt, kern, counts, p_y, S = _sampler_at(synth, 3)
     rng = np.random.default_rng(0)
     # One (cell, action) per table kind.
     A, C = m.n_actions, m.n_cells
@@ -493,12 +513,7 @@ def test_sampled_observations_follow_eq4(synth) -> None:
     for kind, (cell, action) in cases.items():
         counters = np.zeros(3, dtype=np.int64)
         n = 20000
-        draws = np.array(
-            [
-                mcts._sample_outcome(mt, kern, action, cell, counts, S, counters, False)
-                for _ in range(n)
-            ]
-        )
+        draws = _draws(n, mt, kern, action, cell, counts, S, counters, False)
         expect = outcome_probabilities(m, cell, action, p_y)
         idx = ["tally", "marg", "none"].index(kind)
         assert counters[idx] == n
@@ -556,26 +571,14 @@ def test_per_class_backoff_follows_its_reference(synth) -> None:
     from activetouch.planning.observation_model import outcome_probabilities_per_class
 
     m = synth.model
-    kern = mcts.kernel_tuple(synth.kernel)
-    mt = model_tuple(m)
-    counts, _ = _root(synth, 5)
-    p_y = synth.kernel.proba(counts)
-    S = np.empty(kern[1].shape[0] + 2)
-    mcts._scores_init(kern, counts, S)
-    A, C = m.n_actions, m.n_cells
+    mt, kern, counts, p_y, S = _sampler_at(synth, 5)
     # A (cell, action) where some but not all classes have a tally row: the two readings differ.
-    codes = m.tally_key
-    by_pair: dict[tuple[int, int], int] = {}
-    for k in codes:
-        key = (int(k % C), int(k // C % A))
-        by_pair[key] = by_pair.get(key, 0) + 1
+    by_pair = _classes_per_pair(m)
     cell, action = next(p for p, n in by_pair.items() if n < m.n_classes)
     counters = np.zeros(3, dtype=np.int64)
     mcts.seed_numba(7)
     n = 20000
-    draws = np.array(
-        [mcts._sample_outcome(mt, kern, action, cell, counts, S, counters, True) for _ in range(n)]
-    )
+    draws = _draws(n, mt, kern, action, cell, counts, S, counters, True)
     expect = outcome_probabilities_per_class(m, cell, action, p_y)
     freq = np.bincount(draws[draws >= 0], minlength=m.n_outcomes) / n
     assert np.abs(freq - expect).max() < 0.02
@@ -588,17 +591,8 @@ def test_tempered_eq4_draws_classes_from_the_flattened_belief(synth) -> None:
     """planner.belief_temperature tau: the sampler's outcome frequencies follow Eq. 4's
     reference with p(y|h)^(1/tau) normalised in place of p(y|h); tau = 1 is Eq. 4 itself."""
     m = synth.model
-    kern = mcts.kernel_tuple(synth.kernel)
-    mt = model_tuple(m)
-    counts, _ = _root(synth, 3)
-    p_y = synth.kernel.proba(counts)
-    S = np.empty(kern[1].shape[0] + 2)
-    mcts._scores_init(kern, counts, S)
-    A, C = m.n_actions, m.n_cells
-    by_pair: dict[tuple[int, int], int] = {}
-    for k in m.tally_key:
-        key = (int(k % C), int(k // C % A))
-        by_pair[key] = by_pair.get(key, 0) + 1
+    mt, kern, counts, p_y, S = _sampler_at(synth, 3)
+    by_pair = _classes_per_pair(m)
     cell, action = max(by_pair, key=by_pair.get)  # the pair most classes answer
     tau = 4.0
     flat = p_y ** (1 / tau) / np.sum(p_y ** (1 / tau))
@@ -609,12 +603,7 @@ def test_tempered_eq4_draws_classes_from_the_flattened_belief(synth) -> None:
     mcts.seed_numba(11)
     counters = np.zeros(3, dtype=np.int64)
     n = 20000
-    draws = np.array(
-        [
-            mcts._sample_outcome(mt, kern, action, cell, counts, S, counters, False, 1 / tau)
-            for _ in range(n)
-        ]
-    )
+    draws = _draws(n, mt, kern, action, cell, counts, S, counters, False, 1 / tau)
     freq = np.bincount(draws, minlength=m.n_outcomes) / n
     assert np.abs(freq - expect).max() < 0.02
     with pytest.raises(PlanningError, match="temperature"):
