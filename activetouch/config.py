@@ -40,6 +40,16 @@ class RecognitionConfig:
     # Contacts this close to the support plane (or below it) are the table, not the object.
     support_margin_m: float = 0.005
     seed: int = 0
+    # What the session's p(y | ...) is (read when recognising, so eval can switch it):
+    # "histogram" (the paper: the classifier on the histogram of every triangle so far) or
+    # "grasp_likelihood" (Bayes over grasps, each weighed by p(grasp | y, wrist pose) from the
+    # training grasps near that pose; recognition/grasp_likelihood.py). The kernel widths:
+    belief: str = "histogram"
+    likelihood_pose_sigma_m: float = 0.02
+    likelihood_pose_sigma_deg: float = 12.0
+    likelihood_sensor_scale: float = 2.0
+    likelihood_angle_sigma_rad: float = 0.05
+    likelihood_floor: float = 1e-4
 
 
 @dataclass
@@ -190,6 +200,17 @@ class SimConfig:
     fault_dead: int = 0
     fault_stuck: int = 0
     fault_spurious: float = 0.0
+
+
+# The real robot's errors the twin can add (SimConfig above; docs/benchmark.md).
+SIM_ERROR_SETTINGS = (
+    "placement_error_m",
+    "placement_error_deg",
+    "fault_noise_std",
+    "fault_dead",
+    "fault_stuck",
+    "fault_spurious",
+)
 
 
 @dataclass
@@ -419,6 +440,7 @@ def set_devices(cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVIC
 # Settings that take one of a few words; anything else is refused when the config is loaded.
 CHOICES: dict[str, tuple[str, ...]] = {
     "recognition.classifier": ("svm", "nn_inner", "nn_intersection"),
+    "recognition.belief": ("histogram", "grasp_likelihood"),
     "observation.granularity": ("triangle", "grasp"),
     "observation.action_frame": ("relative", "absolute"),
     "planner.policy": ("tree", "greedy", "random"),

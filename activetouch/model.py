@@ -10,6 +10,8 @@ On disk (no pickle; `TrainedModel.save` writes a temp directory and renames it i
                           configuration, dataset checksum, the array files and their sha256
     DIR/classifier.npz    the classifier's `to_arrays()`
     DIR/observation.npz   the observation model's arrays (its scalars are in model.json)
+    DIR/likelihood.npz    the training grasps the per-grasp likelihood weighs (models saved
+                          before it was added have none: recognition.belief=histogram only)
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from activetouch.recognition.classifiers import (
     make_classifier,
 )
 from activetouch.recognition.dataset import Dataset, ObjectGrasps, load_npz_bytes, npz_bytes
+from activetouch.recognition.grasp_likelihood import GraspLikelihood
 from activetouch.recognition.histogram import HistogramSpec
 from activetouch.recognition.training import grasp_triangles, partial_histograms
 from activetouch.recognition.triangles import triangle_params
@@ -47,6 +50,7 @@ MODEL_JSON = "model.json"
 CLASSIFIER_FILE = "classifier.npz"
 OBSERVATION_FILE = "observation.npz"
 HISTOGRAMS_FILE = "class_histograms.npz"
+LIKELIHOOD_FILE = "likelihood.npz"
 
 
 @dataclass
@@ -63,6 +67,7 @@ class TrainedModel:
     # (K, n_bins) L1-normalised histogram of all training grasps per class: the "true"
     # histograms the paper measures test-time distances against.
     class_histograms: np.ndarray | None = None
+    likelihood: GraspLikelihood | None = None
 
     @property
     def n_classes(self) -> int:
@@ -95,6 +100,8 @@ class TrainedModel:
         }
         if self.class_histograms is not None:
             files[HISTOGRAMS_FILE] = npz_bytes({"H": np.asarray(self.class_histograms)})
+        if self.likelihood is not None:
+            files[LIKELIHOOD_FILE] = npz_bytes(self.likelihood.to_arrays())
         doc = {
             "format": MODEL_FORMAT_NAME,
             "format_version": MODEL_FORMAT_VERSION,
@@ -118,6 +125,11 @@ class TrainedModel:
             doc["class_histograms"] = {
                 "file": HISTOGRAMS_FILE,
                 "sha256": hashlib.sha256(files[HISTOGRAMS_FILE]).hexdigest(),
+            }
+        if self.likelihood is not None:
+            doc["likelihood"] = {
+                "file": LIKELIHOOD_FILE,
+                "sha256": hashlib.sha256(files[LIKELIHOOD_FILE]).hexdigest(),
             }
         try:
             files[MODEL_JSON] = (json.dumps(doc, indent=2, sort_keys=True) + "\n").encode()
@@ -187,6 +199,7 @@ def train_model(
         raise DataError(f"training needs at least 2 objects, got {len(names)}: {names}")
     rc = cfg.recognition
     per_object: list[tuple[str, np.ndarray, list[np.ndarray]]] = []
+    grasps: list[tuple[np.ndarray, list]] = []
     for name in names:
         og = dataset.read(name)
         if pose_ids is not None and name in pose_ids:
@@ -211,6 +224,7 @@ def train_model(
                 "nothing to learn from (recollect it)"
             )
         per_object.append((name, og.poses, tris))
+        grasps.append((og.poses, og.grasps))
 
     spec = HistogramSpec.fit(np.concatenate([t for _, _, ts in per_object for t in ts]), rc.bins)
     H, y = partial_histograms(
@@ -239,6 +253,7 @@ def train_model(
             "triangles": {n: int(sum(len(t) for t in ts)) for n, _, ts in per_object},
         },
         class_histograms=class_histograms,
+        likelihood=GraspLikelihood.fit(grasps),
     )
 
 
@@ -298,7 +313,14 @@ def load_model(path: str | os.PathLike) -> TrainedModel:
     class_histograms = None
     if "class_histograms" in doc:
         class_histograms = _read_checked(root, doc["class_histograms"], "class histograms").get("H")
+    likelihood = None
+    if "likelihood" in doc:
+        likelihood = GraspLikelihood.from_arrays(
+            _read_checked(root, doc["likelihood"], "grasp likelihood")
+        )
     problems = []
+    if likelihood is not None and likelihood.n_classes != len(class_names):
+        problems.append(f"grasp likelihood has {likelihood.n_classes} classes")
     if class_histograms is not None and class_histograms.shape != (len(class_names), spec.n_bins):
         problems.append(f"class histograms of shape {class_histograms.shape}")
     if classifier.n_classes != len(class_names):
@@ -325,4 +347,5 @@ def load_model(path: str | os.PathLike) -> TrainedModel:
         created=str(doc.get("created", "")),
         meta=doc.get("meta", {}) if isinstance(doc.get("meta", {}), dict) else {},
         class_histograms=class_histograms,
+        likelihood=likelihood,
     )

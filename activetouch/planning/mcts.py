@@ -70,6 +70,22 @@ from activetouch.recognition.classifiers import (
     softmin_into,
 )
 
+# Planning on the grasp-likelihood belief (recognition.belief = grasp_likelihood): p(y | ...)
+# is Bayes' rule over the grasps, not a classifier. Its kernel tuple keeps kernel_tuple's
+# layout so the compiled code is shared: slot 2 holds the root's log-belief (K,), slot 8 the
+# log-likelihood table (O, K) of every outcome's training grasp, and the scores S hold the
+# simulated log-belief (an outcome adds its grasp's row; slot 3 maps outcomes to grasps).
+KIND_BAYES = 3
+
+
+@dataclass(frozen=True)
+class BeliefTable:
+    """What planning on the grasp-likelihood belief needs from the trained model."""
+
+    log_lik: np.ndarray  # (G, K) log p(training grasp g | y), at g's own pose
+    outcome_grasp: np.ndarray  # (O,) the training grasp of each observation-model outcome
+
+
 # Draws before a uniform pick among the remaining edges falls back to a full scan.
 _REJECTION_TRIES = 32
 
@@ -147,6 +163,12 @@ def _proba_full(kern: tuple, hist: np.ndarray) -> np.ndarray:
 def _scores_init(kern: tuple, hist: np.ndarray, S: np.ndarray) -> None:
     W = kern[1]
     M, D = W.shape
+    if kern[0] == KIND_BAYES:
+        for m in range(M):
+            S[m] = kern[2][m]
+        S[M] = 0.0
+        S[M + 1] = 0.0
+        return
     total = 0.0
     sq = 0.0
     for i in range(D):
@@ -168,7 +190,11 @@ def _scores_add(
     """Add outcome `o`'s triangles to the histogram (and to S when the kernel is linear)."""
     WT = kern[8]
     M = WT.shape[1]
-    linear = kern[0] != KIND_NN_INTERSECTION and kern[9]
+    if kern[0] == KIND_BAYES:  # Bayes' rule: the likelihoods of the outcome's grasp
+        g = kern[3][o]
+        for m in range(M):
+            S[m] += WT[g, m]
+    linear = kern[0] != KIND_NN_INTERSECTION and kern[0] != KIND_BAYES and kern[9]
     for k in range(out_ptr[o], out_ptr[o + 1]):
         j = out_bin[k]
         if linear:
@@ -182,6 +208,8 @@ def _scores_add(
 @njit(cache=True)
 def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
     kind = kern[0]
+    if kind == KIND_BAYES:
+        return _softmax(S[: kern[7]])
     if kind == KIND_NN_INTERSECTION or not kern[9]:
         return _proba_full(kern, hist)
     b, row_class, platt_a, platt_b, temperature, n_classes = (
@@ -216,6 +244,15 @@ def _proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
                 dmin[row_class[m]] = d
         softmin_into(dmin, temperature, out)
     return normalise_or_uniform(out)
+
+
+@njit(cache=True)
+def _softmax(log_b: np.ndarray) -> np.ndarray:
+    out = np.empty(log_b.shape[0])
+    top = np.max(log_b)
+    for k in range(log_b.shape[0]):
+        out[k] = np.exp(log_b[k] - top)
+    return out / out.sum()
 
 
 @njit(cache=True)
@@ -845,6 +882,25 @@ def kernel_tuple(kernel: ClassifierKernel, incremental: bool = True) -> tuple:
     )
 
 
+def bayes_kernel_tuple(belief: BeliefTable) -> tuple:
+    """The kernel tuple of planning on the grasp-likelihood belief (`KIND_BAYES`); the root's
+    log-belief goes in slot 2 per search."""
+    f64 = np.float64
+    K = belief.log_lik.shape[1]
+    return (
+        np.int64(KIND_BAYES),
+        np.zeros((K, 0)),
+        np.zeros(K),
+        np.ascontiguousarray(belief.outcome_grasp, dtype=np.int64),
+        np.zeros(K),
+        np.zeros(K),
+        f64(1.0),
+        np.int64(K),
+        np.ascontiguousarray(belief.log_lik, dtype=f64),
+        np.bool_(True),
+    )
+
+
 def model_tuple(model: ObservationModel) -> tuple:
     """The observation model as the argument tuple the compiled code takes (no copies of the
     model's arrays when they already have the compiled code's dtypes)."""
@@ -920,9 +976,22 @@ class TreeSearch:
         incremental: bool = True,
         anytime: bool = False,
         objective: str | None = None,
+        belief: BeliefTable | None = None,
     ) -> None:
         """`objective`: "final" (Eq. 1, the paper), "anytime" or "info_gain" (see the module
-        notes); None takes "anytime" if `anytime` else "final" (the older keyword)."""
+        notes); None takes "anytime" if `anytime` else "final" (the older keyword).
+        `belief`: plan on the grasp-likelihood belief instead of the classifier
+        (`KIND_BAYES`); each search then takes the real log-belief (`log_belief`)."""
+        if belief is not None:
+            G, K = np.shape(belief.log_lik)
+            og = np.asarray(belief.outcome_grasp)
+            if model.n_classes != K or og.shape != (model.n_outcomes,):
+                raise PlanningError(
+                    f"belief table for {K} classes and {og.shape[0]} outcomes, the observation "
+                    f"model has {model.n_classes} classes and {model.n_outcomes} outcomes"
+                )
+            if len(og) and (og.min() < 0 or og.max() >= G):
+                raise PlanningError(f"belief table: outcome grasps outside [0, {G})")
         if kernel.n_classes != model.n_classes:
             raise PlanningError(
                 f"classifier has {kernel.n_classes} classes, observation model "
@@ -944,7 +1013,10 @@ class TreeSearch:
         self.anytime = objective == "anytime"
         self._objective_code = OBJECTIVE_CODES[objective]
         self._m = model_tuple(model)
-        self._k = kernel_tuple(kernel, incremental)
+        self.bayes = belief is not None
+        self._k = (
+            bayes_kernel_tuple(belief) if belief is not None else kernel_tuple(kernel, incremental)
+        )
         deg = np.diff(model.edge_ptr)
         self.max_degree = int(deg.max()) if deg.size else 0
         self._tree: Tree | None = None
@@ -990,13 +1062,24 @@ class TreeSearch:
         keep_tree: bool = False,
         per_class_backoff: bool = False,
         belief_temperature: float = 1.0,
+        log_belief: np.ndarray | None = None,
     ) -> SearchResult:
         """Build a tree from the root (`pose`, `counts`, `cells`) and extract its best path.
 
         `visited`: pose ids already executed (never targets; `pose` itself is added).
         `counts`: the real histogram so far (n_bins,). `cells`: conditioning cells of the last
-        real grasp (one is drawn per simulation; empty: no conditioning, marginal rows)."""
+        real grasp (one is drawn per simulation; empty: no conditioning, marginal rows).
+        `log_belief` (K,): the real summed grasp log-likelihoods, for a search made with a
+        belief table (ignored otherwise)."""
         model = self.model
+        kern = self._k
+        if self.bayes:
+            if log_belief is None:
+                raise PlanningError("this search plans on the grasp belief: give log_belief")
+            lb = np.ascontiguousarray(log_belief, dtype=np.float64).reshape(-1)
+            if lb.shape != (model.n_classes,) or not np.all(np.isfinite(lb)):
+                raise PlanningError(f"log_belief must be {model.n_classes} finite values")
+            kern = (*kern[:2], lb - lb.max(), *kern[3:])
         if not 0 <= pose < model.n_poses:
             raise PlanningError(f"pose id {pose} outside the model's {model.n_poses} poses")
         if horizon < 1:
@@ -1038,7 +1121,7 @@ class TreeSearch:
         counters = np.zeros(3, dtype=np.int64)
         n_nodes, n_recs, done = _run_simulations(
             self._m,
-            self._k,
+            kern,
             np.int64(pose),
             used,
             hist,

@@ -117,6 +117,10 @@ class ObservationModel:
     # with relative actions), which is not stored per edge (200 MB at 5000 poses).
     edge_cost: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (E,) or (0,) float64
     action_frame: str = "relative"  # "relative" (the paper) | "absolute", see the builder
+    # Grasp granularity: the training grasp of each outcome (O,), indexing the training grasps
+    # in class order, each class's in dataset order (what the grasp likelihood holds, for
+    # planning on its belief). Empty for triangle outcomes and models saved before.
+    out_grasp: np.ndarray = field(default_factory=_empty_i64)
 
     @property
     def n_classes(self) -> int:
@@ -279,6 +283,10 @@ class ObservationModel:
             k = getattr(self, key)
             if len(k) and (np.any(np.diff(k) <= 0) or k[0] < 0 or k[-1] >= bound):
                 fail(f"{key} is not strictly ascending within [0, {bound})")
+        if len(self.out_grasp) not in (0, n_out) or (
+            len(self.out_grasp) and self.out_grasp.min() < 0
+        ):
+            fail(f"out_grasp has {len(self.out_grasp)} grasp ids for {n_out} outcomes")
         if len(self.edge_cost) not in (0, len(self.edge_action)):
             fail(f"edge_cost has {len(self.edge_cost)} costs for {len(self.edge_action)} edges")
         if not np.all((self.edge_cost >= 0) & (self.edge_cost <= 1)):
@@ -558,6 +566,7 @@ def build_observation_model(
     nb = spec.n_bins
 
     # Outcomes: one id per triangle, so both granularities share the tally code below.
+    out_grasp = _empty_i64()
     if cfg.granularity == "triangle":
         ucode, tri_out = np.unique(tri_cell * nb + tri_bin, return_inverse=True)
         out_cell = (ucode // nb).astype(np.int64)
@@ -567,6 +576,7 @@ def build_observation_model(
         ucode, tri_out = np.unique(tri_grasp * max(C, 1) + tri_cell, return_inverse=True)
         out_cell = (ucode % max(C, 1)).astype(np.int64)
         og = (ucode // max(C, 1)).astype(np.int64)  # grasp of each outcome
+        out_grasp = og
         lens = np.diff(tri_ptr)[og]
         out_ptr = np.zeros(len(ucode) + 1, dtype=np.int64)
         np.cumsum(lens, out=out_ptr[1:])
@@ -673,6 +683,7 @@ def build_observation_model(
         max_translation=max_t,
         edge_cost=np.asarray(edge_cost, dtype=np.float64),
         action_frame=cfg.action_frame,
+        out_grasp=out_grasp,
     )
 
 

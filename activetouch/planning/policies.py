@@ -22,7 +22,7 @@ import numpy as np
 
 from activetouch.config import CHOICES, PlannerConfig
 from activetouch.errors import ConfigError, PlanningError
-from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
+from activetouch.planning.mcts import BeliefTable, SearchResult, TreeSearch, unvisited_targets
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.recognition.classifiers import ClassifierKernel
 
@@ -40,6 +40,9 @@ class PlanningState:
     visited: np.ndarray  # (n,) int64 executed pose ids, the current one included
     counts: np.ndarray  # (n_bins,) float64 histogram counts of all real grasps so far
     cells: np.ndarray  # (m,) int64 cells of the last real grasp
+    # Summed log p(grasp | y, pose) of the real grasps (K,), when recognition.belief is
+    # grasp_likelihood: the root belief of a policy made with a belief table.
+    log_belief: np.ndarray | None = None
 
     @classmethod
     def start(cls, pose: int, counts: np.ndarray, cells: np.ndarray) -> PlanningState:
@@ -123,6 +126,7 @@ class TreePolicy(Policy):
         eq4_sampling: str = "renormalise",
         objective: str = "final",
         belief_temperature: float = 1.0,
+        belief: BeliefTable | None = None,
     ) -> None:
         if horizon < 1:
             raise ConfigError(f"planner.horizon must be >= 1, got {horizon}")
@@ -150,7 +154,7 @@ class TreePolicy(Policy):
             raise ConfigError(
                 f"planner.objective must be one of {', '.join(OBJECTIVES)}, got {objective!r}"
             )
-        self.search = TreeSearch(model, kernel, objective=objective)
+        self.search = TreeSearch(model, kernel, objective=objective, belief=belief)
 
     def interrupt(self) -> None:
         self.search.interrupt()
@@ -174,6 +178,7 @@ class TreePolicy(Policy):
             lam=self.lam,
             per_class_backoff=self.per_class_backoff,
             belief_temperature=self.belief_temperature,
+            log_belief=state.log_belief,
         )
         if res.exhausted:
             return _exhausted(self.name)
@@ -225,16 +230,25 @@ OBJECTIVES: tuple[str, ...] = CHOICES["planner.objective"]
 
 
 def make_policy(
-    name: str, cfg: PlannerConfig, model: ObservationModel, kernel: ClassifierKernel
+    name: str,
+    cfg: PlannerConfig,
+    model: ObservationModel,
+    kernel: ClassifierKernel,
+    belief: BeliefTable | None = None,
 ) -> Policy:
-    """A policy by its configuration name (tree | greedy | random), parameters from `cfg`."""
-    policy = _make(name, cfg, model, kernel)
+    """A policy by its configuration name (tree | greedy | random), parameters from `cfg`.
+    `belief`: plan on the grasp-likelihood belief (`TreeSearch`)."""
+    policy = _make(name, cfg, model, kernel, belief)
     policy.movement_cost = cfg.movement_cost
     return policy
 
 
 def _make(
-    name: str, cfg: PlannerConfig, model: ObservationModel, kernel: ClassifierKernel
+    name: str,
+    cfg: PlannerConfig,
+    model: ObservationModel,
+    kernel: ClassifierKernel,
+    belief: BeliefTable | None,
 ) -> Policy:
     if name == "random":
         return RandomPolicy(model)
@@ -246,6 +260,7 @@ def _make(
         "eq4_sampling": cfg.eq4_sampling,
         "objective": cfg.objective,
         "belief_temperature": cfg.belief_temperature,
+        "belief": belief,
     }
     if name == "tree":
         return TreePolicy(model, kernel, horizon=cfg.horizon, **kw)  # type: ignore[arg-type]

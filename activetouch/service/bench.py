@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     from activetouch.service.client import local_daemon, open_client
     from activetouch.service.messages import RecognizeRequest
     from activetouch.service.recognize import load_trained, model_path, recognize_in_twin
-    from activetouch.service.session import RecognitionSession
+    from activetouch.service.session import RecognitionSession, belief_table_of
     from activetouch.sim.objects import ObjectLibrary
     from activetouch.sim.twin import open_twin
 
@@ -120,7 +120,13 @@ def main(argv: list[str] | None = None) -> int:
         first: list[float] = []
         t0 = time.perf_counter()
         twin.place(spec, seed)
-        policy = make_policy(args.policy, cfg.planner, model.observation, kernel)
+        policy = make_policy(
+            args.policy,
+            cfg.planner,
+            model.observation,
+            kernel,
+            belief_table_of(model, cfg.recognition),
+        )
         session_cfg = dataclasses.replace(cfg.session, max_moves=max_moves)
         res = RecognitionSession(
             twin.hand,
@@ -131,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             np.random.default_rng(seed),
             lambda _ev: first or first.append(time.perf_counter() - t0),
             support_z=twin.support_z,
+            recognition=cfg.recognition,
         ).run()
         total = time.perf_counter() - t0
         return {"first_s": first[0], "total_s": total, "labels": res.labels, "poses": res.pose_ids}

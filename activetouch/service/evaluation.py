@@ -16,21 +16,12 @@ from typing import Any
 import numpy as np
 from scipy.stats import binomtest
 
-from activetouch.config import Config, SimConfig
+from activetouch.config import SIM_ERROR_SETTINGS, Config, SimConfig
 from activetouch.errors import ConfigError
 from activetouch.recognition.distances import inner_product_distance
 from activetouch.service.executors import check_executor, ray_map
 
 STABLE_RUN = 3  # "3-in-a-row correct", as in the paper's real-robot table
-# The real robot's errors the twin can add (SimConfig; docs/benchmark.md), as eval reports them.
-ERROR_SETTINGS = (
-    "placement_error_m",
-    "placement_error_deg",
-    "fault_noise_std",
-    "fault_dead",
-    "fault_stuck",
-    "fault_spurious",
-)
 SENSOR_FAULT_KEYS = {
     "noise": "fault_noise_std",
     "dead": "fault_dead",
@@ -41,7 +32,7 @@ SENSOR_FAULT_KEYS = {
 
 def robot_errors(sim: SimConfig) -> dict[str, float]:
     """The error settings that are on (empty: the nominal twin)."""
-    return {k: getattr(sim, k) for k in ERROR_SETTINGS if getattr(sim, k)}
+    return {k: getattr(sim, k) for k in SIM_ERROR_SETTINGS if getattr(sim, k)}
 
 
 def error_overrides(placement: str | None, faults: str | None) -> list[str]:

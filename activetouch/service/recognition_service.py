@@ -813,7 +813,7 @@ class RecognitionService:
 
     def _recognize(self, running: _Running) -> RecognizeResult:
         from activetouch.service.session import Progress as SessionProgress
-        from activetouch.service.session import RecognitionSession
+        from activetouch.service.session import RecognitionSession, belief_table_of
 
         job, req, cfg = running.job, running.job.request, self.cfg
         model = self.model
@@ -846,7 +846,13 @@ class RecognitionService:
             simulations=req.simulations or cfg.planner.simulations,
         )
         policy = _TimedPolicy(
-            make_policy(req.policy, planner_cfg, model.observation, self._kernel),
+            make_policy(
+                req.policy,
+                planner_cfg,
+                model.observation,
+                self._kernel,
+                belief_table_of(model, cfg.recognition),
+            ),
             self.svc.max_plan_s,
         )
         running.policy = policy
@@ -886,6 +892,7 @@ class RecognitionService:
             on_progress,
             running.cancel,
             support_z=support_z,
+            recognition=self.cfg.recognition,
         )
         t_run = time.perf_counter()
         try:

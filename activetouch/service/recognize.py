@@ -18,7 +18,12 @@ from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
 from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
 from activetouch.planning.policies import POLICY_NAMES, Policy, make_policy
-from activetouch.service.session import Progress, RecognitionResult, RecognitionSession
+from activetouch.service.session import (
+    Progress,
+    RecognitionResult,
+    RecognitionSession,
+    belief_table_of,
+)
 from activetouch.sim.objects import ObjectLibrary
 
 if TYPE_CHECKING:
@@ -69,7 +74,13 @@ def recognize_in_twin(
         session_cfg = type(cfg.session)(**{**vars(cfg.session), "max_moves": int(max_moves)})
     check_request(policy_name, session_cfg.max_moves, seed)
     spec = library.get(object_name)
-    policy = make_policy(policy_name, cfg.planner, model.observation, model.classifier.kernel())
+    policy = make_policy(
+        policy_name,
+        cfg.planner,
+        model.observation,
+        model.classifier.kernel(),
+        belief_table_of(model, cfg.recognition),
+    )
     rng = np.random.default_rng(seed)
     if cfg.arm.type != FLOATING_ARM:
         return _recognize_on_devices(
@@ -86,6 +97,7 @@ def recognize_in_twin(
             on_progress,
             cancel,
             support_z=twin.support_z,
+            recognition=cfg.recognition,
         )
         return session.run()
 
@@ -120,6 +132,7 @@ def _recognize_on_devices(
             on_progress,
             cancel,
             support_z=placement.support_z(cfg.workcell.table_top_z),
+            recognition=cfg.recognition,
         )
         return session.run()
 

@@ -25,6 +25,7 @@ sessions are unchanged.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -33,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from activetouch.config import SessionConfig
+from activetouch.config import RecognitionConfig, SessionConfig
 from activetouch.errors import (
     ActiveTouchError,
     ConfigError,
@@ -42,10 +43,16 @@ from activetouch.errors import (
 )
 from activetouch.interfaces import Grasp, Hand, Pose
 from activetouch.model import TrainedModel
+from activetouch.planning.mcts import BeliefTable
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
 from activetouch.planning.policies import Plan, PlanningState, Policy
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
+from activetouch.recognition.grasp_likelihood import (
+    GraspLikelihood,
+    LikelihoodParams,
+    softmax_belief,
+)
 
 log = logging.getLogger(__name__)
 
@@ -143,9 +150,12 @@ class RecognitionSession:
         on_progress: Callable[[Progress], None] | None = None,
         cancel: threading.Event | None = None,
         support_z: float | None = None,
+        recognition: RecognitionConfig | None = None,
     ) -> None:
         """`support_z`: the table plane in the object frame (the object pose is known, as in
-        the paper, from the workcell); contacts on it are dropped, as in training."""
+        the paper, from the workcell); contacts on it are dropped, as in training.
+        `recognition`: the settings that choose the belief (`recognition.belief`); default the
+        model's own."""
         if cfg.max_moves < 1:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
@@ -162,6 +172,7 @@ class RecognitionSession:
         self._poses = np.concatenate([obs.pose_xyz, obs.pose_quat], axis=1)
         self._preshapes = training_preshapes(model)
         self._grasp_s = 0.0
+        self._likelihood = grasp_likelihood_of(model, recognition)
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
         """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
@@ -248,24 +259,33 @@ class RecognitionSession:
         counts = np.zeros(self.model.spec.n_bins)
         state: PlanningState | None = None
         streak = 0
+        log_b = np.zeros(len(names))  # summed log p(grasp | y, pose) (grasp_likelihood)
 
         def observe(pose_id: int, grasp: Grasp, pose: Pose) -> None:
-            nonlocal counts, state, streak
+            nonlocal counts, state, streak, log_b
             tris = self.model.triangles(grasp.xyz)
             add = self.model.spec.counts(tris)
             cells = self.model.observation.cells_of(tris)
             counts = counts + add
             visited.append(pose_id)
+            if self._likelihood is not None:
+                model_l, params = self._likelihood
+                log_b = log_b + model_l.log_likelihood(grasp, pose, params)
             state = PlanningState(
                 pose=pose_id,
                 visited=np.array(visited, dtype=np.int64),
                 counts=counts,
                 cells=cells,
+                log_belief=log_b if self._likelihood is not None else None,
             )
-            p = self.model.proba(counts)
+            if self._likelihood is None:
+                p = self.model.proba(counts)
+                # No triangle yet: p is uniform and its argmax (class 0) says nothing.
+                felt = bool(counts.any())
+            else:
+                p = softmax_belief(log_b)
+                felt = bool(np.ptp(p) > 1e-12)  # even an empty grasp may tell classes apart
             best = int(np.argmax(p))
-            # No triangle yet: p is uniform and its argmax (class 0) says nothing.
-            felt = bool(counts.any())
             res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
@@ -303,6 +323,7 @@ class RecognitionSession:
                     visited=np.array(visited, dtype=np.int64),
                     counts=state.counts,
                     cells=state.cells,
+                    log_belief=state.log_belief,
                 )
 
         def attempt(pose_id: int) -> bool:
@@ -363,3 +384,54 @@ class RecognitionSession:
         self._clock(res, clock0)
         res.elapsed_s = time.perf_counter() - t0
         return res
+
+
+def grasp_likelihood_of(
+    model: TrainedModel, recognition: RecognitionConfig | None
+) -> tuple[GraspLikelihood, LikelihoodParams] | None:
+    """The per-grasp likelihood and its widths when `recognition.belief` asks for it (None for
+    the paper's histogram classifier); ConfigError if the model has none."""
+    if recognition is None:
+        known = {f.name for f in dataclasses.fields(RecognitionConfig)}
+        saved = model.config.get("recognition", {})
+        recognition = RecognitionConfig(**{k: v for k, v in saved.items() if k in known})
+    if recognition.belief == "histogram":
+        return None
+    if recognition.belief != "grasp_likelihood":
+        raise ConfigError(
+            f"recognition.belief: {recognition.belief!r} is not one of histogram, grasp_likelihood"
+        )
+    if model.likelihood is None:
+        raise ConfigError(
+            "recognition.belief=grasp_likelihood: this model has no grasp likelihood (trained "
+            "before it existed); retrain it with `activetouch train` (the grasps are reused)"
+        )
+    params = LikelihoodParams(
+        pose_sigma_m=recognition.likelihood_pose_sigma_m,
+        pose_sigma_deg=recognition.likelihood_pose_sigma_deg,
+        sensor_scale=recognition.likelihood_sensor_scale,
+        angle_sigma_rad=recognition.likelihood_angle_sigma_rad,
+        floor=recognition.likelihood_floor,
+    )
+    return model.likelihood, params
+
+
+def belief_table_of(
+    model: TrainedModel, recognition: RecognitionConfig | None
+) -> BeliefTable | None:
+    """What the planner needs to plan on the grasp-likelihood belief (`make_policy`'s
+    `belief`), or None for the histogram belief; ConfigError if the model cannot give it."""
+    lik = grasp_likelihood_of(model, recognition)
+    if lik is None:
+        return None
+    model_l, params = lik
+    out_grasp = model.observation.out_grasp
+    if len(out_grasp) != model.observation.n_outcomes or model.observation.n_outcomes == 0:
+        raise ConfigError(
+            "recognition.belief=grasp_likelihood: the observation model does not say which "
+            "training grasp each outcome is (observation.granularity=grasp, trained by this "
+            "version); retrain with `activetouch train`"
+        )
+    if out_grasp.max() >= len(model_l.labels):
+        raise ConfigError("the observation model and the grasp likelihood differ in grasps")
+    return BeliefTable(model_l.training_log_likelihoods(params), out_grasp)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from activetouch.config import Config
+from activetouch.config import SIM_ERROR_SETTINGS, Config
 from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
 from activetouch.model import TrainedModel, train_model
 from activetouch.planning.grid import GridPoses, object_grids
@@ -39,6 +39,11 @@ def dataset_meta(cfg: Config) -> dict:
         del sim[key]
     if sim["sensing"] == "tactile":  # keeps datasets made before the setting valid
         del sim["sensing"], sim["stall_contact_site"]
+    # A dataset is bound to the real robot's errors only when they are set (collected with
+    # them): nominal datasets made before these settings existed stay valid.
+    if not any(sim[k] for k in SIM_ERROR_SETTINGS):
+        for k in SIM_ERROR_SETTINGS:
+            del sim[k]
     meta = {
         "source": "twin",
         "grid": grid,

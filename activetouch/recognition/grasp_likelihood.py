@@ -1,0 +1,193 @@
+"""A Bayesian belief over classes from per-grasp likelihoods p(grasp | y, wrist pose).
+
+The paper classifies the histogram of every triangle felt so far. That bag forgets where each
+grasp was made and drops grasps with fewer than 3 contacts, so look-alikes that differ in one
+place (a bottle's neck, a box a centimetre taller) stay confused, and an empty grasp, which
+says "the object is not here", counts for nothing. This belief keeps both:
+
+    log b_t(y) = sum over grasps g of log p(g | y, pose of g),  p(y | history) = softmax(b_t)
+
+p(g | y, x) is a kernel estimate from class y's training grasps near wrist pose x (the same
+grasps the observation model draws from): each training grasp j weighs
+
+    w_j = exp(-|x - x_j|^2 / 2 s_x^2 - angle(x, x_j)^2 / 2 s_r^2)            (near in pose)
+    k_j = exp(-hamming(sensors, sensors_j) / s_h - |theta - theta_j|^2 / 2 s_t^2)   (alike)
+
+with the sensors in contact as 38 bits and theta the three fingers' closing angles (how far a
+finger closed says how wide the object is where it touched). p(g | y, x) = sum w k / sum w,
+plus a floor so one odd grasp cannot rule a class out. A class with no training grasp near x
+gets the mean likelihood of those that have one (it has no say there).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from activetouch.errors import ConfigError, DataError
+from activetouch.interfaces import Grasp, Pose
+
+N_SENSORS = 38  # ReFlex: 3 fingers x 9 + 11 palm; the bit mask needs <= 64
+_WEIGHT_CUTOFF = 1e-6  # training poses weighing less than this are left out of the sums
+
+
+@dataclass(frozen=True)
+class LikelihoodParams:
+    """The kernel widths (`recognition.likelihood_*` settings)."""
+
+    pose_sigma_m: float = 0.02
+    pose_sigma_deg: float = 12.0
+    sensor_scale: float = 2.0  # Hamming distance per e-fold
+    angle_sigma_rad: float = 0.05
+    floor: float = 1e-4
+
+    def __post_init__(self) -> None:
+        for name in ("pose_sigma_m", "pose_sigma_deg", "sensor_scale", "angle_sigma_rad", "floor"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+                raise ConfigError(f"recognition.likelihood_{name} must be > 0, got {v!r}")
+
+
+def sensor_mask(sensor_ids: np.ndarray) -> np.uint64:
+    """The sensors in contact as one 64-bit mask (bit i = sensor i)."""
+    ids = np.asarray(sensor_ids, dtype=np.int64).reshape(-1)
+    if len(ids) and (ids.min() < 0 or ids.max() >= 64):
+        raise DataError(f"sensor ids must be in [0, 64) for the likelihood, got {ids.tolist()}")
+    return np.uint64(np.bitwise_or.reduce(np.left_shift(np.uint64(1), ids.astype(np.uint64))))
+
+
+def finger_closure(grasp: Grasp) -> np.ndarray:
+    """The three fingers' closing angles (3,), zeros where the hand reports fewer."""
+    out = np.zeros(3)
+    a = np.asarray(grasp.finger_angles, dtype=np.float64).reshape(-1)[:3]
+    out[: len(a)] = a
+    return out
+
+
+def pose_weights(poses: np.ndarray, x: np.ndarray, sigma_m: float, sigma_rad: float) -> np.ndarray:
+    """Gaussian weights (n,) of training poses (n, 7) around wrist pose `x` (7,): translation
+    distance and rotation angle (q and -q alike)."""
+    d2 = np.sum((poses[:, :3] - x[:3]) ** 2, axis=1)
+    dot = np.abs(poses[:, 3:] @ (x[3:] / np.linalg.norm(x[3:])))
+    ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+    return np.exp(-d2 / (2.0 * sigma_m**2) - ang**2 / (2.0 * sigma_rad**2))
+
+
+def softmax_belief(log_b: np.ndarray) -> np.ndarray:
+    """p(y | history) from the summed log-likelihoods (a uniform prior)."""
+    z = np.exp(log_b - np.max(log_b))
+    return z / z.sum()
+
+
+@dataclass
+class GraspLikelihood:
+    """Every training grasp's pose, class, sensor mask and finger closure."""
+
+    poses: np.ndarray  # (G, 7) x y z qx qy qz qw, unit quaternions
+    labels: np.ndarray  # (G,) int64 class index
+    masks: np.ndarray  # (G,) uint64
+    closure: np.ndarray  # (G, 3) float64
+    n_classes: int
+
+    @classmethod
+    def fit(cls, per_object: list[tuple[np.ndarray, list[Grasp]]]) -> GraspLikelihood:
+        """From each class's (poses (G, 7), grasps), classes in order."""
+        poses, labels, masks, closure = [], [], [], []
+        for y, (p, grasps) in enumerate(per_object):
+            p = np.asarray(p, dtype=np.float64).reshape(-1, 7)
+            if len(p) != len(grasps):
+                raise DataError(f"class {y}: {len(p)} poses for {len(grasps)} grasps")
+            poses.append(p)
+            labels.append(np.full(len(p), y, dtype=np.int64))
+            masks.append(np.array([sensor_mask(g.sensor_ids) for g in grasps], dtype=np.uint64))
+            closure.append(np.array([finger_closure(g) for g in grasps]).reshape(-1, 3))
+        P = np.concatenate(poses)
+        P[:, 3:] /= np.linalg.norm(P[:, 3:], axis=1, keepdims=True)
+        return cls(
+            P,
+            np.concatenate(labels),
+            np.concatenate(masks),
+            np.concatenate(closure),
+            len(per_object),
+        )
+
+    def log_likelihood(self, grasp: Grasp, pose: Pose, params: LikelihoodParams) -> np.ndarray:
+        """log p(grasp | y, pose) for every class y (K,)."""
+        x = np.concatenate([np.asarray(pose.xyz, float), np.asarray(pose.quat, float)])
+        mask = np.array([sensor_mask(grasp.sensor_ids)], dtype=np.uint64)
+        return self._log_likelihood_many(mask, finger_closure(grasp)[None], x, params)[0]
+
+    def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
+        """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a
+        simulated observation of grasp j tells the planner's belief (cached per `params`)."""
+        cache: dict[LikelihoodParams, np.ndarray] = self.__dict__.setdefault("_table", {})
+        if params not in cache:
+            out = np.empty((len(self.labels), self.n_classes))
+            _, first, at = np.unique(
+                np.round(self.poses, 9), axis=0, return_index=True, return_inverse=True
+            )
+            at = at.reshape(-1)
+            order = np.argsort(at, kind="stable")
+            bounds = np.searchsorted(at[order], np.arange(len(first) + 1))
+            for u in range(len(first)):
+                rows = order[bounds[u] : bounds[u + 1]]
+                out[rows] = self._log_likelihood_many(
+                    self.masks[rows], self.closure[rows], self.poses[first[u]], params
+                )
+            out.flags.writeable = False
+            cache[params] = out
+        return cache[params]
+
+    def _log_likelihood_many(
+        self, masks: np.ndarray, closure: np.ndarray, x: np.ndarray, params: LikelihoodParams
+    ) -> np.ndarray:
+        """(n, K) log-likelihoods of n grasps (masks (n,), closure (n, 3)) all made at `x`."""
+        w = pose_weights(self.poses, x, params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg))
+        near = np.flatnonzero(w > _WEIGHT_CUTOFF)
+        w = w[near]
+        ham = np.bitwise_count(self.masks[near][None, :] ^ masks[:, None]).astype(float)
+        dth = np.sum((self.closure[near][None, :, :] - closure[:, None, :]) ** 2, axis=2)
+        k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
+        onehot = np.zeros((len(near), self.n_classes))
+        onehot[np.arange(len(near)), self.labels[near]] = w
+        num = k @ onehot  # (n, K)
+        den = onehot.sum(axis=0)
+        has = den > 0
+        lik = np.zeros((len(masks), self.n_classes))
+        lik[:, has] = num[:, has] / den[has]
+        if has.any():
+            lik[:, ~has] = lik[:, has].mean(axis=1, keepdims=True)  # no grasp near: no say
+        else:
+            lik[:] = 1.0  # nowhere near the training poses: no evidence at all
+        return np.log(lik + params.floor)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {
+            "poses": self.poses,
+            "labels": self.labels,
+            "masks": self.masks,
+            "closure": self.closure,
+            "n_classes": np.array([self.n_classes], dtype=np.int64),
+        }
+
+    @classmethod
+    def from_arrays(cls, d: dict[str, np.ndarray]) -> GraspLikelihood:
+        try:
+            out = cls(
+                np.asarray(d["poses"], dtype=np.float64),
+                np.asarray(d["labels"], dtype=np.int64),
+                np.asarray(d["masks"], dtype=np.uint64),
+                np.asarray(d["closure"], dtype=np.float64),
+                int(np.asarray(d["n_classes"]).reshape(-1)[0]),
+            )
+        except KeyError as e:
+            raise DataError(f"grasp likelihood arrays: {e} missing") from None
+        except (IndexError, TypeError, ValueError) as e:
+            raise DataError(f"grasp likelihood arrays: malformed ({e})") from None
+        G = len(out.labels)
+        if out.poses.shape != (G, 7) or out.masks.shape != (G,) or out.closure.shape != (G, 3):
+            raise DataError("grasp likelihood arrays differ in length")
+        if G and (out.labels.min() < 0 or out.labels.max() >= out.n_classes):
+            raise DataError("grasp likelihood labels out of range")
+        return out

@@ -1,0 +1,136 @@
+"""The per-grasp likelihood p(grasp | y, wrist pose) and the belief it gives."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from activetouch.errors import ConfigError, DataError
+from activetouch.interfaces import Grasp, Pose
+from activetouch.recognition.dataset import load_npz_bytes, npz_bytes
+from activetouch.recognition.grasp_likelihood import (
+    GraspLikelihood,
+    LikelihoodParams,
+    pose_weights,
+    sensor_mask,
+    softmax_belief,
+)
+
+IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
+FULL = [0, 1, 2, 3, 4, 5, 6, 7]  # 8 sensors: exp(-8 / 2) against nothing felt
+
+
+def grasp(ids: list[int], angles: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> Grasp:
+    n = len(ids)
+    return Grasp(np.array(ids), np.zeros((n, 3)), np.full(n, 30.0), np.array(angles))
+
+
+def pose_at(x: float) -> np.ndarray:
+    return np.array([x, 0.0, 0.2, *IDENTITY])
+
+
+def two_classes() -> GraspLikelihood:
+    # Both classes grasped at x = 0 and x = 0.3: alike at 0.3, different at 0.
+    return GraspLikelihood.fit(
+        [
+            (np.stack([pose_at(0.0), pose_at(0.3)]), [grasp(FULL), grasp([5, 6, 7])]),
+            (np.stack([pose_at(0.0), pose_at(0.3)]), [grasp([]), grasp([5, 6, 7])]),
+        ]
+    )
+
+
+def test_sensor_mask_sets_one_bit_per_sensor() -> None:
+    assert sensor_mask(np.array([0, 3, 37])) == np.uint64(1 + 8 + 2**37)
+    assert sensor_mask(np.array([], dtype=np.int64)) == np.uint64(0)
+    with pytest.raises(DataError):
+        sensor_mask(np.array([64]))
+
+
+def test_pose_weights_fall_with_distance_and_angle() -> None:
+    turned = np.array([0.0, 0.0, 0.2, 0.0, 0.0, np.sin(0.1), np.cos(0.1)])  # 0.2 rad about z
+    w = pose_weights(np.stack([pose_at(0.0), pose_at(0.02), turned]), pose_at(0.0), 0.02, 0.2)
+    assert w[0] == pytest.approx(1.0)
+    assert w[1] == pytest.approx(np.exp(-0.5))
+    assert w[2] == pytest.approx(np.exp(-0.5))
+    # q and -q are the same rotation
+    flipped = pose_at(0.0)
+    flipped[3:] = -flipped[3:]
+    assert pose_weights(flipped[None], pose_at(0.0), 0.02, 0.2)[0] == pytest.approx(1.0)
+
+
+def test_a_grasp_is_evidence_for_the_class_that_felt_it_there() -> None:
+    lik = two_classes()
+    p = LikelihoodParams()
+    at0 = Pose(pose_at(0.0)[:3], IDENTITY)
+    ll = lik.log_likelihood(grasp(FULL), at0, p)
+    assert ll[0] > ll[1] + 3.5
+    # An empty grasp says something too: class 1 felt nothing there.
+    ll_empty = lik.log_likelihood(grasp([]), at0, p)
+    assert ll_empty[1] > ll_empty[0] + 3.5
+    # Where both classes feel the same, the grasp cannot tell them apart.
+    at3 = Pose(pose_at(0.3)[:3], IDENTITY)
+    same = lik.log_likelihood(grasp([5, 6, 7]), at3, p)
+    assert same[0] == pytest.approx(same[1])
+
+
+def test_finger_closure_tells_a_wide_object_from_a_narrow_one() -> None:
+    lik = GraspLikelihood.fit(
+        [
+            (pose_at(0.0)[None], [grasp([1, 2, 3], (0.8, 0.8, 0.8))]),
+            (pose_at(0.0)[None], [grasp([1, 2, 3], (1.2, 1.2, 1.2))]),
+        ]
+    )
+    ll = lik.log_likelihood(
+        grasp([1, 2, 3], (1.15, 1.2, 1.2)), Pose(pose_at(0.0)[:3], IDENTITY), LikelihoodParams()
+    )
+    assert ll[1] > ll[0] + 5.0
+
+
+def test_a_class_without_grasps_near_the_pose_has_no_say() -> None:
+    lik = GraspLikelihood.fit(
+        [
+            (pose_at(0.0)[None], [grasp([1])]),
+            (pose_at(0.0)[None], [grasp([2])]),
+            (pose_at(0.5)[None], [grasp([1])]),  # far away: nothing near x = 0
+        ]
+    )
+    ll = lik.log_likelihood(grasp([1]), Pose(pose_at(0.0)[:3], IDENTITY), LikelihoodParams())
+    assert ll[0] > ll[1]
+    assert np.exp(ll[2]) == pytest.approx((np.exp(ll[0]) + np.exp(ll[1])) / 2)
+
+
+def test_belief_sums_evidence_over_grasps() -> None:
+    lik = two_classes()
+    p = LikelihoodParams()
+    at0 = Pose(pose_at(0.0)[:3], IDENTITY)
+    log_b = np.zeros(2)
+    for _ in range(2):
+        log_b += lik.log_likelihood(grasp(FULL), at0, p)
+    b = softmax_belief(log_b)
+    assert b.sum() == pytest.approx(1.0)
+    assert b[0] > 0.999
+    assert softmax_belief(np.array([1000.0, 0.0]))[0] == pytest.approx(1.0)  # no overflow
+
+
+def test_arrays_round_trip_and_bad_arrays_are_refused() -> None:
+    lik = two_classes()
+    # through the .npz bytes a model file holds
+    back = GraspLikelihood.from_arrays(load_npz_bytes(npz_bytes(lik.to_arrays()), Path("x")))
+    for name in ("poses", "labels", "masks", "closure"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(lik, name))
+    assert back.n_classes == 2
+    bad = lik.to_arrays()
+    bad["closure"] = bad["closure"][:1]
+    with pytest.raises(DataError):
+        GraspLikelihood.from_arrays(bad)
+    bad = lik.to_arrays()
+    del bad["masks"]
+    with pytest.raises(DataError):
+        GraspLikelihood.from_arrays(bad)
+
+
+def test_kernel_widths_must_be_positive() -> None:
+    with pytest.raises(ConfigError, match="likelihood_pose_sigma_m"):
+        LikelihoodParams(pose_sigma_m=0.0)
