@@ -72,6 +72,24 @@ def test_train_save_load_round_trip(
     for k, v in model.observation.arrays().items():
         np.testing.assert_array_equal(getattr(again.observation, k), v)
         assert getattr(again.observation, k).dtype == v.dtype
+    # The grasp likelihood holds every training grasp, classes in order.
+    assert model.likelihood is not None and again.likelihood is not None
+    assert len(model.likelihood.labels) == sum(model.meta["grasps"].values())
+    for k, v in model.likelihood.to_arrays().items():
+        np.testing.assert_array_equal(again.likelihood.to_arrays()[k], v)
+    obs = model.observation
+    if granularity == "grasp":
+        # Each outcome adds the triangle bins of the training grasp it names.
+        og = obs.out_grasp
+        assert og.shape == (obs.n_outcomes,)
+        ds_grasps = [g for n in model.class_names for g in dataset.read(n).grasps]
+        for o in range(0, obs.n_outcomes, max(1, obs.n_outcomes // 25)):
+            tris = model.triangles(ds_grasps[og[o]].xyz)
+            want = np.sort(model.spec.bin_index(tris))
+            got = np.sort(obs.out_bin[obs.out_ptr[o] : obs.out_ptr[o + 1]])
+            np.testing.assert_array_equal(got, want)
+    else:
+        assert len(obs.out_grasp) == 0  # a triangle outcome is no one grasp
 
     # Saving again replaces the model in place; no temp directories are left behind.
     model.save(out)

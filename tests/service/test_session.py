@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import numpy as np
@@ -10,8 +11,15 @@ from activetouch.errors import ConfigError, UnreachableError
 from activetouch.interfaces import Grasp, Pose
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.policies import make_policy
+from activetouch.recognition.grasp_likelihood import softmax_belief
 from activetouch.service.recognize import recognize_in_twin
-from activetouch.service.session import NO_LABEL, RecognitionSession, display_label
+from activetouch.service.session import (
+    NO_LABEL,
+    RecognitionSession,
+    belief_table_of,
+    display_label,
+    grasp_likelihood_of,
+)
 from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
 from tests.conftest import SMALL_OBJECTS, small_config
@@ -398,3 +406,84 @@ def test_recognize_in_twin_runs_other_arms_on_the_configured_devices(
     assert res.motion_s > 0 and res.motion_s == pytest.approx(again.motion_s)
     floating = _run(trained_home, small_model, obj="sphere", max_moves=4)
     assert floating.motion_s > 0
+
+
+def test_the_grasp_likelihood_belief_is_what_the_session_reports_and_plans_on(
+    trained_home, small_model
+):
+    """recognition.belief=grasp_likelihood: p after every grasp is Bayes' rule over the grasps
+    made (recomputed here from what the hand felt), and every plan starts from that belief."""
+    cfg = small_config()
+    cfg.recognition.belief = "grasp_likelihood"
+    lik, params = grasp_likelihood_of(small_model, cfg.recognition)
+    pol = make_policy(
+        "tree",
+        cfg.planner,
+        small_model.observation,
+        small_model.classifier.kernel(),
+        belief_table_of(small_model, cfg.recognition),
+    )
+    planned_from: dict[int, np.ndarray] = {}  # grasps made -> the belief a plan started from
+    plan = pol.plan
+
+    def spying(state, rng):
+        planned_from[len(felt)] = state.log_belief.copy()
+        return plan(state, rng)
+
+    pol.plan = spying  # type: ignore[method-assign]
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    felt: list[tuple[Grasp, Pose]] = []
+    with open_twin(lib.get("bottle"), cfg.sim, seed=4) as twin:
+        session = RecognitionSession(
+            twin.hand,
+            twin.wrist,
+            small_model,
+            pol,
+            type(cfg.session)(max_moves=5),
+            np.random.default_rng(4),
+            support_z=twin.support_z,
+            recognition=cfg.recognition,
+        )
+        grasp_at = session._grasp_at
+
+        def recording(pose_id):
+            g, pose = grasp_at(pose_id)
+            felt.append((g, pose))
+            return g, pose
+
+        session._grasp_at = recording  # type: ignore[method-assign]
+        res = session.run()
+    assert res.moves == len(felt) >= 2
+    assert planned_from and 0 not in planned_from
+    log_b = np.zeros(len(SMALL_OBJECTS))
+    for i, (g, pose) in enumerate(felt, 1):
+        log_b += lik.log_likelihood(g, pose, params)
+        np.testing.assert_allclose(res.probabilities[i - 1], softmax_belief(log_b), atol=1e-12)
+        if i in planned_from:  # a plan after i grasps starts from the belief after them
+            np.testing.assert_allclose(planned_from[i], log_b, atol=1e-12)
+    # The histogram belief (the default) gives other probabilities for the same session.
+    plain = _run(trained_home, small_model, "bottle", "random", seed=4, max_moves=3)
+    cfg_b = small_config()
+    cfg_b.recognition.belief = "grasp_likelihood"
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    bayes = recognize_in_twin(small_model, lib, "bottle", "random", 4, cfg_b, max_moves=3)
+    assert plain.pose_ids == bayes.pose_ids
+    assert not np.allclose(plain.probabilities, bayes.probabilities)
+
+
+def test_a_model_without_a_grasp_likelihood_says_to_retrain(trained_home, small_model):
+    cfg = small_config()
+    cfg.recognition.belief = "grasp_likelihood"
+    old = dataclasses.replace(small_model, likelihood=None)
+    with pytest.raises(ConfigError, match="retrain"):
+        belief_table_of(old, cfg.recognition)
+    with pytest.raises(ConfigError, match="retrain"):
+        recognize_in_twin(
+            old, ObjectLibrary(paths.objects_dir(trained_home)), "cup", "random", 0, cfg
+        )
+    older = dataclasses.replace(
+        small_model,
+        observation=dataclasses.replace(small_model.observation, out_grasp=np.zeros(0, np.int64)),
+    )
+    with pytest.raises(ConfigError, match="retrain"):
+        belief_table_of(older, cfg.recognition)
