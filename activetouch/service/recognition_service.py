@@ -444,20 +444,25 @@ class RecognitionService:
 
     def _warm_up(self) -> None:
         """Plan once now, so the first request does not wait for numba to load (or compile)
-        the tree search."""
+        the tree search, nor for the grasp-likelihood table (cached on the model)."""
+        from activetouch.service.session import belief_table_of
+
         t = time.perf_counter()
         try:
+            belief = belief_table_of(self.model, self.cfg.recognition)
             policy = make_policy(
                 "tree",
                 dataclasses.replace(self.cfg.planner, horizon=1, simulations=2),
                 self.model.observation,
                 self._kernel,
+                belief,
             )
             state = PlanningState(
                 pose=0,
                 visited=np.array([0], dtype=np.int64),
                 counts=np.zeros(self.model.spec.n_bins),
                 cells=np.zeros(0, dtype=np.int64),
+                log_belief=None if belief is None else np.zeros(self.model.n_classes),
             )
             policy.plan(state, np.random.default_rng(0))
         except Exception as e:  # best effort: the first request then pays instead

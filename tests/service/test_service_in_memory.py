@@ -16,6 +16,7 @@ from activetouch.devices import make_devices
 from activetouch.service.keys import Keys
 from activetouch.service.messages import RecognizeRequest
 from activetouch.service.recognition_service import RecognitionService, local_links
+from tests.conftest import SMALL_OBJECTS
 
 ROBOT = "memory"
 
@@ -136,6 +137,21 @@ def test_the_result_reports_the_wrists_robot_seconds(trained_home: Path) -> None
         assert abs(res["motion_s"] - moved) < 1e-9
         assert res["motion_planning_s"] == 0.0  # the fake's floating wrist plans nothing
         assert 0.01 * res["moves"] <= res["grasp_s"] < res["elapsed_s"]
+    finally:
+        svc.close()
+        devices.close()
+
+
+def test_the_service_recognises_on_the_grasp_likelihood_belief(trained_home: Path) -> None:
+    """recognition.belief=grasp_likelihood reaches the daemon's sessions and planner."""
+    svc, devices = _service(trained_home, "recognition.belief=grasp_likelihood")
+    k = Keys(ROBOT)
+    try:
+        q = FakeQuery(RecognizeRequest(policy="tree", max_moves=3, seed=4, object="cup"))
+        svc.submit(k.recognize, q)
+        res = _wait(q)["result"]
+        assert res["moves"] == 3
+        assert res["label"] in SMALL_OBJECTS and 0.0 < res["probability"] <= 1.0
     finally:
         svc.close()
         devices.close()
