@@ -43,11 +43,13 @@ class RecognitionConfig:
     # What the session's p(y | ...) is (read when recognising, so eval can switch it):
     # "histogram" (the paper: the classifier on the histogram of every triangle so far) or
     # "grasp_likelihood" (Bayes over grasps, each weighed by p(grasp | y, wrist pose) from the
-    # training grasps near that pose; recognition/grasp_likelihood.py). The kernel widths:
+    # training grasps near that pose; recognition/grasp_likelihood.py). The kernel widths
+    # (sensor scale and finger-angle width tuned on the hard library's seeds 100-119,
+    # docs/benchmark.md):
     belief: str = "histogram"
     likelihood_pose_sigma_m: float = 0.02
     likelihood_pose_sigma_deg: float = 12.0
-    likelihood_sensor_scale: float = 2.0
+    likelihood_sensor_scale: float = 1.0
     likelihood_angle_sigma_rad: float = 0.05
     likelihood_floor: float = 1e-4
 

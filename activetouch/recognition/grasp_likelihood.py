@@ -38,7 +38,7 @@ class LikelihoodParams:
 
     pose_sigma_m: float = 0.02
     pose_sigma_deg: float = 12.0
-    sensor_scale: float = 2.0  # Hamming distance per e-fold
+    sensor_scale: float = 1.0  # Hamming distance per e-fold
     angle_sigma_rad: float = 0.05
     floor: float = 1e-4
 

@@ -19,7 +19,7 @@ from activetouch.recognition.grasp_likelihood import (
 )
 
 IDENTITY = np.array([0.0, 0.0, 0.0, 1.0])
-FULL = [0, 1, 2, 3, 4, 5, 6, 7]  # 8 sensors: exp(-8 / 2) against nothing felt
+FULL = [0, 1, 2, 3, 4, 5, 6, 7]  # 8 sensors: exp(-8) against nothing felt (sensor scale 1)
 
 
 def grasp(ids: list[int], angles: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> Grasp:
