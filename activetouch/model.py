@@ -32,7 +32,8 @@ import numpy as np
 
 from activetouch.config import Config, as_dict
 from activetouch.errors import DataError
-from activetouch.planning.observation_model import ObservationModel, build_observation_model
+from activetouch.planning.observation_builder import build_observation_model
+from activetouch.planning.observation_model import ObservationModel
 from activetouch.recognition.classifiers import (
     Classifier,
     classifier_from_arrays,

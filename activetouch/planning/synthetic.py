@@ -29,12 +29,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from activetouch.planning.observation_builder import concat_csr_rows, rank_edge_codes
 from activetouch.planning.observation_model import (
     GRANULARITIES,
     ObservationModel,
-    concat_csr_rows,
     edge_index_dtype,
-    rank_edge_codes,
 )
 from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
 

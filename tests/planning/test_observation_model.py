@@ -9,9 +9,9 @@ from scipy.stats import chisquare
 
 from activetouch.config import ObservationConfig
 from activetouch.errors import ConfigError, DataError
+from activetouch.planning.observation_builder import build_observation_model
 from activetouch.planning.observation_model import (
     ObservationModel,
-    build_observation_model,
     canonical_quat,
     discretise,
     movement_cost,
@@ -493,7 +493,7 @@ def test_edge_cost_is_the_cost_of_the_move() -> None:
 def test_edges_built_in_blocks_are_the_edges_built_at_once(frame: str, monkeypatch) -> None:
     """The builder keys the all-pairs edges a block of source poses at a time (to keep memory
     bounded at thousands of poses); any block size gives the same model to the bit."""
-    import activetouch.planning.observation_model as om
+    import activetouch.planning.observation_builder as om
 
     rng = np.random.default_rng(5)
     P = 40

@@ -9,7 +9,7 @@ from scipy.stats import chisquare
 
 from activetouch.config import ObservationConfig, PlannerConfig
 from activetouch.errors import ConfigError
-from activetouch.planning.observation_model import build_observation_model
+from activetouch.planning.observation_builder import build_observation_model
 from activetouch.planning.policies import (
     GreedyPolicy,
     PlanningState,
