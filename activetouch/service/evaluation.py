@@ -19,7 +19,7 @@ from scipy.stats import binomtest
 from activetouch.config import SIM_ERROR_SETTINGS, Config, SimConfig
 from activetouch.errors import ConfigError
 from activetouch.recognition.distances import inner_product_distance
-from activetouch.service.executors import check_executor, ray_map
+from activetouch.service.executors import check_executor, exit_with_parent, ray_map
 
 STABLE_RUN = 3  # "3-in-a-row correct", as in the paper's real-robot table
 SENSOR_FAULT_KEYS = {
@@ -227,7 +227,9 @@ def run_all(
                 progress(i, len(jobs))
         return out
     ctx = mp.get_context("spawn")  # PyBullet and numba state do not survive fork()
-    with cf.ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+    with cf.ProcessPoolExecutor(
+        workers, mp_context=ctx, initializer=exit_with_parent, initargs=(os.getpid(),)
+    ) as pool:
         futures = [pool.submit(run_job, j) for j in jobs]
         for i, _ in enumerate(cf.as_completed(futures), 1):
             if progress:

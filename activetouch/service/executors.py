@@ -11,12 +11,16 @@ import argparse
 import ipaddress
 import logging
 import os
+import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from activetouch.errors import ActiveTouchError, ConfigError
 
 log = logging.getLogger(__name__)
+
+PARENT_POLL_S = 0.2  # how often a local pool worker checks that its parent still runs
 
 EXECUTORS = ("local", "ray")
 # Ray's single-machine mode (its default on macOS and Windows): a local Ray's servers listen
@@ -122,3 +126,16 @@ def ray_map(
     finally:
         for ref in waiting:  # empty when every task finished
             ray.cancel(ref)
+
+
+def exit_with_parent(parent: int) -> None:
+    """A local pool worker's initializer: exit as soon as `parent` (the process that made the
+    pool) is gone, however it ended, so a killed sweep leaves no worker running on."""
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent:  # re-parented: the parent died
+                os._exit(3)
+            time.sleep(PARENT_POLL_S)
+
+    threading.Thread(target=watch, name="activetouch-parent-watch", daemon=True).start()

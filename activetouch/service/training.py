@@ -9,7 +9,6 @@ import dataclasses
 import logging
 import multiprocessing as mp
 import os
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -21,7 +20,7 @@ from activetouch.model import TrainedModel, train_model
 from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset, GraspRecord
 from activetouch.service.collect import CollectStats, collect_object, pending_poses
-from activetouch.service.executors import check_executor, ray_map
+from activetouch.service.executors import check_executor, exit_with_parent, ray_map
 from activetouch.sim.objects import ObjectLibrary
 
 log = logging.getLogger(__name__)
@@ -303,23 +302,13 @@ def _collect_ray(
 
 
 _worker_queue: object | None = None  # a worker's progress queue (set by `_worker_init`)
-PARENT_POLL_S = 0.2
 
 
 def _worker_init(queue: object, parent: int) -> None:
     """In each pool worker: keep the progress queue; exit as soon as the parent is gone."""
-    import threading
-
     global _worker_queue
     _worker_queue = queue
-
-    def watch() -> None:
-        while True:
-            if os.getppid() != parent:  # re-parented: the training process died
-                os._exit(3)
-            time.sleep(PARENT_POLL_S)
-
-    threading.Thread(target=watch, name="activetouch-parent-watch", daemon=True).start()
+    exit_with_parent(parent)
 
 
 @contextlib.contextmanager
