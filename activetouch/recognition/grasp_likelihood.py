@@ -21,10 +21,11 @@ gets the mean likelihood of those that have one (it has no say there).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError, DataError
 from activetouch.interfaces import Grasp, Pose
 
@@ -32,21 +33,28 @@ N_SENSORS = 38  # ReFlex: 3 fingers x 9 + 11 palm; the bit mask needs <= 64
 _WEIGHT_CUTOFF = 1e-6  # training poses weighing less than this are left out of the sums
 
 
+_DEFAULTS = RecognitionConfig()  # the widths' defaults live with the settings
+
+
 @dataclass(frozen=True)
 class LikelihoodParams:
-    """The kernel widths (`recognition.likelihood_*` settings)."""
+    """The kernel widths: the `recognition.likelihood_*` settings without their prefix."""
 
-    pose_sigma_m: float = 0.02
-    pose_sigma_deg: float = 12.0
-    sensor_scale: float = 1.0  # Hamming distance per e-fold
-    angle_sigma_rad: float = 0.05
-    floor: float = 1e-4
+    pose_sigma_m: float = _DEFAULTS.likelihood_pose_sigma_m
+    pose_sigma_deg: float = _DEFAULTS.likelihood_pose_sigma_deg
+    sensor_scale: float = _DEFAULTS.likelihood_sensor_scale  # Hamming distance per e-fold
+    angle_sigma_rad: float = _DEFAULTS.likelihood_angle_sigma_rad
+    floor: float = _DEFAULTS.likelihood_floor
 
     def __post_init__(self) -> None:
-        for name in ("pose_sigma_m", "pose_sigma_deg", "sensor_scale", "angle_sigma_rad", "floor"):
-            v = getattr(self, name)
+        for f in fields(self):
+            v = getattr(self, f.name)
             if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
-                raise ConfigError(f"recognition.likelihood_{name} must be > 0, got {v!r}")
+                raise ConfigError(f"recognition.likelihood_{f.name} must be > 0, got {v!r}")
+
+    @classmethod
+    def from_config(cls, rc: RecognitionConfig) -> LikelihoodParams:
+        return cls(**{f.name: getattr(rc, f"likelihood_{f.name}") for f in fields(cls)})
 
 
 def sensor_mask(sensor_ids: np.ndarray) -> np.uint64:
@@ -89,6 +97,10 @@ class GraspLikelihood:
     masks: np.ndarray  # (G,) uint64
     closure: np.ndarray  # (G, 3) float64
     n_classes: int
+    # training_log_likelihoods per kernel widths (derived, so not compared or shown)
+    _tables: dict[LikelihoodParams, np.ndarray] = field(
+        default_factory=dict, init=False, repr=False, compare=False
+    )
 
     @classmethod
     def fit(cls, per_object: list[tuple[np.ndarray, list[Grasp]]]) -> GraspLikelihood:
@@ -121,7 +133,7 @@ class GraspLikelihood:
     def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
         """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a
         simulated observation of grasp j tells the planner's belief (cached per `params`)."""
-        cache: dict[LikelihoodParams, np.ndarray] = self.__dict__.setdefault("_table", {})
+        cache = self._tables
         if params not in cache:
             out = np.empty((len(self.labels), self.n_classes))
             _, first, at = np.unique(

@@ -268,23 +268,22 @@ class RecognitionSession:
             cells = self.model.observation.cells_of(tris)
             counts = counts + add
             visited.append(pose_id)
-            if self._likelihood is not None:
-                model_l, params = self._likelihood
-                log_b = log_b + model_l.log_likelihood(grasp, pose, params)
-            state = PlanningState(
-                pose=pose_id,
-                visited=np.array(visited, dtype=np.int64),
-                counts=counts,
-                cells=cells,
-                log_belief=log_b if self._likelihood is not None else None,
-            )
             if self._likelihood is None:
                 p = self.model.proba(counts)
                 # No triangle yet: p is uniform and its argmax (class 0) says nothing.
                 felt = bool(counts.any())
             else:
+                model_l, params = self._likelihood
+                log_b = log_b + model_l.log_likelihood(grasp, pose, params)
                 p = softmax_belief(log_b)
                 felt = bool(np.ptp(p) > 1e-12)  # even an empty grasp may tell classes apart
+            state = PlanningState(
+                pose=pose_id,
+                visited=np.array(visited, dtype=np.int64),
+                counts=counts,
+                cells=cells,
+                log_belief=None if self._likelihood is None else log_b,
+            )
             best = int(np.argmax(p))
             res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
@@ -406,14 +405,7 @@ def grasp_likelihood_of(
             "recognition.belief=grasp_likelihood: this model has no grasp likelihood (trained "
             "before it existed); retrain it with `activetouch train` (the grasps are reused)"
         )
-    params = LikelihoodParams(
-        pose_sigma_m=recognition.likelihood_pose_sigma_m,
-        pose_sigma_deg=recognition.likelihood_pose_sigma_deg,
-        sensor_scale=recognition.likelihood_sensor_scale,
-        angle_sigma_rad=recognition.likelihood_angle_sigma_rad,
-        floor=recognition.likelihood_floor,
-    )
-    return model.likelihood, params
+    return model.likelihood, LikelihoodParams.from_config(recognition)
 
 
 def belief_table_of(
