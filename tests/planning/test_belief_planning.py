@@ -13,7 +13,6 @@ from activetouch.errors import PlanningError
 from activetouch.planning.mcts import BeliefTable, TreeSearch
 from activetouch.planning.policies import PlanningState, make_policy
 from tests.planning.test_mcts import (
-    C_ROOT,
     NO_POSES,
     OUT_KEY,
     OUT_MIX,
@@ -21,8 +20,8 @@ from tests.planning.test_mcts import (
     OUT_SIX,
     ROOT_CELLS,
     ROOT_COUNTS,
-    _rule,
     lookahead_problem,
+    path_steps,
 )
 
 # log p(outcome's grasp | y) for y = 0, 1: "six" nearly rules class 1 out, "one" a little,
@@ -40,69 +39,50 @@ BELIEF = BeliefTable(TABLE[::-1].copy(), np.array([3, 2, 1, 0]))
 def bayes_cost(model, start: int, path: list[int], log_b: np.ndarray, horizon: int) -> float:
     """Eq. 1 (lam 0.5) with p = softmax of the summed log-likelihoods along a deterministic path."""
     lb = log_b.copy()
-    move, pose, cell = 0.0, start, C_ROOT
-    for target in path:
-        lo = model.edge_ptr[pose]
-        e = lo + int(np.flatnonzero(model.edge_target[lo : model.edge_ptr[pose + 1]] == target)[0])
-        a = int(model.edge_action[e])
+    move = 0.0
+    for a, o in path_steps(model, start, path):
         move += model.action_cost[a]
-        o = _rule(a, cell)
         lb = lb + TABLE[o]
-        cell = int(model.out_cell[o])
-        pose = target
     p = np.exp(lb - lb.max())
     p /= p.sum()
     return 0.5 / horizon * move + 0.5 * (1 - p.max())
 
 
-def test_the_tree_plans_on_the_belief_and_values_its_paths_by_bayes() -> None:
+def plan_from_root(horizon: int, simulations: int, log_belief: np.ndarray = ROOT):
+    """A search on the belief from pose 0 of the lookahead problem (seed 0)."""
     model, kernel = lookahead_problem()
+    return TreeSearch(model, kernel, belief=BELIEF).search(
+        0,
+        NO_POSES,
+        ROOT_COUNTS,
+        ROOT_CELLS,
+        horizon=horizon,
+        simulations=simulations,
+        rng=np.random.default_rng(0),
+        log_belief=log_belief,
+    )
+
+
+def test_the_tree_plans_on_the_belief_and_values_its_paths_by_bayes() -> None:
+    model, _ = lookahead_problem()
     costs = {
         p: bayes_cost(model, 0, list(p), ROOT, 2)
         for p in itertools.permutations(range(1, model.n_poses), 2)
     }
     best = min(costs, key=costs.get)
     assert list(best) == [2, 3]  # look first, then the telling grasp
-    res = TreeSearch(model, kernel, belief=BELIEF).search(
-        0,
-        NO_POSES,
-        ROOT_COUNTS,
-        ROOT_CELLS,
-        horizon=2,
-        simulations=20000,
-        rng=np.random.default_rng(0),
-        log_belief=ROOT,
-    )
+    res = plan_from_root(horizon=2, simulations=20000)
     assert res.poses.tolist() == [2, 3]
     assert res.value == pytest.approx(1.0 - costs[best], abs=1e-12)
-    greedy = TreeSearch(model, kernel, belief=BELIEF).search(
-        0,
-        NO_POSES,
-        ROOT_COUNTS,
-        ROOT_CELLS,
-        horizon=1,
-        simulations=200,
-        rng=np.random.default_rng(0),
-        log_belief=ROOT,
-    )
+    greedy = plan_from_root(horizon=1, simulations=200)
     assert greedy.poses.tolist() == [1]
     assert greedy.value == pytest.approx(1 - bayes_cost(model, 0, [1], ROOT, 1), abs=1e-12)
 
 
 def test_the_root_belief_is_the_real_one() -> None:
-    model, kernel = lookahead_problem()
-    search = TreeSearch(model, kernel, belief=BELIEF)
+    model, _ = lookahead_problem()
     sure = np.array([0.0, -3.0])  # the real grasps already favour class 0
-    res = search.search(
-        0,
-        NO_POSES,
-        ROOT_COUNTS,
-        ROOT_CELLS,
-        horizon=1,
-        simulations=200,
-        rng=np.random.default_rng(0),
-        log_belief=sure + 100.0,  # only differences count
-    )
+    res = plan_from_root(horizon=1, simulations=200, log_belief=sure + 100.0)  # differences count
     assert res.value == pytest.approx(1 - bayes_cost(model, 0, [1], sure, 1), abs=1e-12)
 
 

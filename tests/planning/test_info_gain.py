@@ -12,22 +12,17 @@ from activetouch.config import load_config
 from activetouch.errors import PlanningError
 from activetouch.planning.mcts import TreeSearch
 from activetouch.planning.policies import make_policy
-from tests.planning.test_mcts import C_ROOT, NO_POSES, ROOT_CELLS, ROOT_COUNTS, _rule
+from tests.planning.test_mcts import NO_POSES, ROOT_CELLS, ROOT_COUNTS, path_steps
 from tests.planning.test_mcts import lookahead_problem as problem
 
 
 def entropy_cost(model, kernel, path: list[int], horizon: int, lam: float) -> float:
     """The info-gain cost of a path of the deterministic hand model, computed directly."""
-    h, cell, pose = ROOT_COUNTS.astype(float).copy(), C_ROOT, 0
+    h = ROOT_COUNTS.astype(float).copy()
     move = unsure = 0.0
-    for target in path:
-        lo = model.edge_ptr[pose]
-        e = lo + int(np.flatnonzero(model.edge_target[lo : model.edge_ptr[pose + 1]] == target)[0])
-        a = int(model.edge_action[e])
+    for a, o in path_steps(model, 0, path):
         move += model.action_cost[a]
-        o = _rule(a, cell)
         np.add.at(h, model.out_bin[model.out_ptr[o] : model.out_ptr[o + 1]], 1.0)
-        cell, pose = int(model.out_cell[o]), target
         p = kernel.proba(h)
         p = p[p > 0]
         unsure += float(-(p * np.log(p)).sum() / np.log(kernel.n_classes))

@@ -169,6 +169,24 @@ ROOT_COUNTS = np.array([1.0, 1.0])
 ROOT_CELLS = np.array([C_ROOT], dtype=np.int64)
 
 
+def path_steps(
+    model: ObservationModel, start: int, path: list[int], cell: int = C_ROOT
+) -> list[tuple[int, int]]:
+    """(action, outcome) of each step of `path` from `start` in a deterministic hand model
+    (outcomes follow `_rule`), the reference the tree's values are checked against."""
+    steps = []
+    pose = start
+    for target in path:
+        lo = model.edge_ptr[pose]
+        e = lo + int(np.flatnonzero(model.edge_target[lo : model.edge_ptr[pose + 1]] == target)[0])
+        a = int(model.edge_action[e])
+        o = _rule(a, cell)
+        steps.append((a, o))
+        cell = int(model.out_cell[o])
+        pose = target
+    return steps
+
+
 def path_cost(
     model: ObservationModel,
     kernel: ClassifierKernel,
@@ -185,16 +203,9 @@ def path_cost(
     h = counts.astype(float).copy()
     move = 0.0
     unsure = 0.0
-    pose = start
-    for target in path:
-        lo = model.edge_ptr[pose]
-        e = lo + int(np.flatnonzero(model.edge_target[lo : model.edge_ptr[pose + 1]] == target)[0])
-        a = int(model.edge_action[e])
+    for a, o in path_steps(model, start, path, cell):
         move += model.action_cost[a]
-        o = _rule(a, cell)
         np.add.at(h, model.out_bin[model.out_ptr[o] : model.out_ptr[o + 1]], 1.0)
-        cell = int(model.out_cell[o])
-        pose = target
         unsure += 1 - kernel.proba(h).max()
     if anytime:
         return (lam * move + (1 - lam) * unsure) / horizon
