@@ -182,6 +182,21 @@ def test_per_object_meta_matches_datasets_made_before_layouts(tmp_path):
     assert dataset_meta(cfg)["grid"]["layout"] == "shared"
 
 
+def test_the_error_settings_bind_a_dataset_only_when_set(tmp_path):
+    """A nominal dataset made before sim's error settings existed stays valid; one collected
+    with an error set is bound to it."""
+    from activetouch.config import SIM_ERROR_SETTINGS
+
+    cfg = small_config()
+    nominal = dataset_meta(cfg)
+    assert not set(SIM_ERROR_SETTINGS) & set(nominal["sim"])
+    ds = Dataset.create_or_open(tmp_path / "ds", nominal)
+    cfg.sim.placement_error_m = 0.02
+    assert dataset_meta(cfg)["sim"]["placement_error_m"] == 0.02
+    with pytest.raises(DataError, match="different settings"):
+        Dataset.create_or_open(ds.path, dataset_meta(cfg))
+
+
 class ReachingWrist:
     """The twin's wrist with a `reachable()` (as Baxter's motion layer has): poses whose index
     in the asked array is in `out` are unreachable; records the asks and the moves."""
