@@ -55,6 +55,18 @@ from activetouch.planning.observation_model import (
 from activetouch.recognition.histogram import HistogramSpec
 
 
+def pose_spread(poses: np.ndarray, translation_cell: float, quaternion_cell: float) -> np.ndarray:
+    """How far (m) each training pose (n, 7), in class order, lies from the pose its pooled
+    pose is executed at: the first pose met with the same discretised key, as
+    `build_observation_model` pools them. Cells wider than the spread of the objects' grid
+    radii send the hand to one object's grid pose for all of them (docs/planner.md)."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+    _, first, inv = encode_rows(pose_keys(poses, translation_cell, quaternion_cell))
+    if not len(poses):
+        return np.zeros(0)
+    return np.linalg.norm(poses[:, :3] - poses[first[inv.reshape(-1)], :3], axis=1)
+
+
 def _cumulative_rows(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ptr, outcome ids, cumulative probabilities) of a CSR count matrix without empty rows."""
     m.sum_duplicates()

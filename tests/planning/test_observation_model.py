@@ -9,7 +9,7 @@ from scipy.stats import chisquare
 
 from activetouch.config import ObservationConfig
 from activetouch.errors import ConfigError, DataError
-from activetouch.planning.observation_builder import build_observation_model
+from activetouch.planning.observation_builder import build_observation_model, pose_spread
 from activetouch.planning.observation_model import (
     ObservationModel,
     canonical_quat,
@@ -326,6 +326,13 @@ def test_pose_dedupe_and_lookup() -> None:
     assert m.pose_index_of(np.array([0.28, 0.01, 0.0, *q])) == 1
     assert m.max_translation == pytest.approx(0.29)
     assert np.all((m.action_cost >= 0) & (m.action_cost <= 1))
+    # Each training pose's distance from the pose its pooled pose executes: the model's own.
+    poses = np.stack([near, far, flipped])
+    spread = pose_spread(poses, 0.06, ObservationConfig().quaternion_cell)
+    executed = m.pose_xyz[[m.pose_index_of(p) for p in poses]]
+    np.testing.assert_allclose(spread, np.linalg.norm(poses[:, :3] - executed, axis=1))
+    np.testing.assert_allclose(spread, [0.0, 0.0, 0.01])
+    np.testing.assert_allclose(pose_spread(poses, 0.01, 0.05), 0.0)  # finer cells: its own
 
 
 def test_storage_round_trip_and_validation() -> None:

@@ -91,7 +91,9 @@ def test_train_command_end_to_end_in_two_processes(tmp_path, capsys):
     assert doc["class_names"] == ["sphere", "cup"]
     ds = Dataset.open(paths.default_dataset(tmp_path))
     assert sorted(ds.object_names()) == ["cup", "sphere"]
-    assert "model written to" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "model written to" in out
+    assert "pooled poses (6 cm cells): a grasp is made up to" in out
 
 
 def test_train_command_user_mistakes_are_one_line_errors(tmp_path, capsys):

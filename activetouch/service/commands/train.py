@@ -6,6 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
@@ -148,8 +149,36 @@ def train(
         f"collected in {t_collect:.1f} s, fitted in {t_fit:.1f} s: {len(names)} classes, "
         f"{obs.n_poses} poses, {obs.n_actions} actions, granularity {obs.granularity}"
     )
+    if model.likelihood is not None:
+        console.print(pooling_line(model.likelihood.poses, cfg), highlight=False)
     console.print(f"model written to {out}")
     return out
+
+
+# Above this a pooled pose may send the hand to another size's grid pose (measured on the hard
+# library: 6 cm cells, up to 5.8 cm apart, left a bottle's lip out of reach; docs/benchmark.md).
+SPREAD_ADVICE_M = 0.02
+
+
+def pooling_line(poses: np.ndarray, cfg: Config) -> str:
+    """How far from its training poses the model's pooled poses send the hand."""
+    from activetouch.planning.observation_builder import pose_spread
+
+    oc = cfg.observation
+    d = pose_spread(poses, oc.translation_cell_m, oc.quaternion_cell)
+    if not len(d):
+        return "no training poses"
+    line = (
+        f"pooled poses ({oc.translation_cell_m * 100:g} cm cells): a grasp is made up to "
+        f"{d.max() * 100:.1f} cm from a pose a class was trained at (90 % within "
+        f"{np.percentile(d, 90) * 100:.1f} cm)"
+    )
+    if d.max() > SPREAD_ADVICE_M:
+        line += (
+            "; for objects of varied sizes, finer cells (observation.translation_cell_m=0.01)"
+            " let the planner choose each size's poses (docs/benchmark.md)"
+        )
+    return line
 
 
 def contact_shares(dataset: Path, names: list[str], cfg: Config) -> list[ContactShare]:
