@@ -22,8 +22,9 @@ import numpy as np
 
 from activetouch.config import CHOICES, PlannerConfig
 from activetouch.errors import ConfigError, PlanningError
-from activetouch.planning.mcts import BeliefTable, SearchResult, TreeSearch, unvisited_targets
+from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
 from activetouch.planning.observation_model import ObservationModel
+from activetouch.planning.simulated_belief import BeliefTable
 from activetouch.recognition.classifiers import ClassifierKernel
 
 

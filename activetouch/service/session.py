@@ -43,10 +43,10 @@ from activetouch.errors import (
 )
 from activetouch.interfaces import Grasp, Hand, Pose
 from activetouch.model import TrainedModel
-from activetouch.planning.mcts import BeliefTable
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
 from activetouch.planning.policies import Plan, PlanningState, Policy
+from activetouch.planning.simulated_belief import BeliefTable
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
 from activetouch.recognition.grasp_likelihood import (
     GraspLikelihood,

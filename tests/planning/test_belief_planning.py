@@ -1,5 +1,5 @@
 """Planning on the grasp-likelihood belief (recognition.belief = grasp_likelihood): the tree
-search with Bayes' rule in place of the classifier (mcts.KIND_BAYES)."""
+search with Bayes' rule in place of the classifier (simulated_belief.KIND_BAYES)."""
 
 from __future__ import annotations
 
@@ -10,8 +10,9 @@ import pytest
 
 from activetouch.config import PlannerConfig
 from activetouch.errors import PlanningError
-from activetouch.planning.mcts import BeliefTable, TreeSearch
+from activetouch.planning.mcts import TreeSearch
 from activetouch.planning.policies import PlanningState, make_policy
+from activetouch.planning.simulated_belief import BeliefTable
 from tests.planning.test_mcts import (
     NO_POSES,
     OUT_KEY,

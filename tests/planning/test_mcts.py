@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from activetouch.errors import PlanningError
-from activetouch.planning import mcts
+from activetouch.planning import mcts, simulated_belief
 from activetouch.planning.mcts import TreeSearch, model_tuple
 from activetouch.planning.observation_model import ObservationModel, outcome_probabilities
 from activetouch.planning.synthetic import synthetic_problem
@@ -483,10 +483,10 @@ def test_both_granularities_plan() -> None:
 def _sampler_at(synth, root: int) -> tuple:
     """What the compiled Eq. 4 sampler takes after the training grasp at `root`: (model tuple,
     kernel tuple, histogram counts, p(y | h), incremental scores)."""
-    kern = mcts.kernel_tuple(synth.kernel)
+    kern = simulated_belief.kernel_tuple(synth.kernel)
     counts, _ = _root(synth, root)
     S = np.empty(kern[1].shape[0] + 2)
-    mcts._scores_init(kern, counts, S)
+    simulated_belief.scores_init(kern, counts, S)
     return model_tuple(synth.model), kern, counts, synth.kernel.proba(counts), S
 
 
@@ -557,21 +557,21 @@ def test_incremental_scores_equal_kernel_proba(kind: int, synth) -> None:
         temperature=0.3,
         n_classes=K,
     )
-    kern = mcts.kernel_tuple(kernel)
+    kern = simulated_belief.kernel_tuple(kernel)
     out_ptr = np.array([0, 1, 4, 7], dtype=np.int64)
     out_bin = np.array([3, 0, 0, 39, 5, 6, 7], dtype=np.int64)
     # Empty, counts, and tiny values whose squares underflow (kernel_proba rescales those).
     for start in (np.zeros(D), rng.integers(0, 4, D).astype(float), rng.random(D) * 1e-170):
         h = start.copy()
         S = np.empty(8)
-        mcts._scores_init(kern, h, S)
+        simulated_belief.scores_init(kern, h, S)
         for o in rng.integers(0, 3, 12):
-            p_inc = mcts._proba_scores(kern, h, S)
+            p_inc = simulated_belief.proba_scores(kern, h, S)
             p_ref = kernel_proba(
                 kind, W, kernel.b, kernel.row_class, kernel.platt_a, kernel.platt_b, 0.3, K, h
             )
             np.testing.assert_allclose(p_inc, p_ref, rtol=0, atol=1e-9)
-            mcts._scores_add(kern, out_ptr, out_bin, int(o), h, S)
+            simulated_belief.scores_add(kern, out_ptr, out_bin, int(o), h, S)
         if kind != KIND_NN_INTERSECTION:
             assert S[6] == pytest.approx(h.sum()) and S[7] == pytest.approx(h @ h)
 
