@@ -59,7 +59,7 @@ def pose_spread(poses: np.ndarray, translation_cell: float, quaternion_cell: flo
     """How far (m) each training pose (n, 7), in class order, lies from the pose its pooled
     pose is executed at: the first pose met with the same discretised key, as
     `build_observation_model` pools them. Cells wider than the spread of the objects' grid
-    radii send the hand to one object's grid pose for all of them (docs/planner.md)."""
+    radii send the hand to one object's grid pose for all of them (docs/benchmark.md)."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
     _, first, inv = encode_rows(pose_keys(poses, translation_cell, quaternion_cell))
     if not len(poses):

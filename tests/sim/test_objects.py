@@ -16,6 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from activetouch.errors import ActiveTouchError, DataError
 from activetouch.sim import objects as obj
+from activetouch.sim.library import paper
 from activetouch.sim.objects import (
     BUILTIN_OBJECTS,
     PAPER_REAL_OBJECTS,
@@ -83,7 +84,7 @@ def _box_obj(path: Path, size=(0.05, 0.06, 0.07), offset=(0.3, -0.2, 1.0)) -> Pa
 
 def test_builtin_sets() -> None:
     assert len(PAPER_SIM_OBJECTS) == 7 and len(PAPER_REAL_OBJECTS) == 5
-    assert set(BUILTIN_OBJECTS) == set(obj.BUILDERS) == set(obj.COLOURS)
+    assert set(BUILTIN_OBJECTS) == set(paper.BUILDERS) == set(paper.COLOURS)
 
 
 def test_builtins_watertight_plausible_sizes(library: ObjectLibrary) -> None:

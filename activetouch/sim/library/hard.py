@@ -15,27 +15,20 @@ from collections.abc import Callable
 
 import numpy as np
 
-from activetouch.sim.objects import (
-    Shape,
-    _cup_like,
-    _half_section,
-    _m,
-    _open_vessel,
-    lathe,
-    profile,
-)
+from activetouch.sim.library.paper import cup_like, open_vessel
+from activetouch.sim.library.shapes import Shape, half_section, lathe, manifold3d_module, profile
 
 HARD_SET = "hard"
 
 
 def _solid(ctrl: list[tuple[float, float]]) -> Shape:
     """A solid of revolution through the control points (r, z)."""
-    return lathe(_half_section(profile(ctrl)))
+    return lathe(half_section(profile(ctrl)))
 
 
 def _box(x: float, y: float, z: float) -> Shape:
     corners = np.array([[i * x, j * y, k * z] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-    return Shape(_m().Manifold.cube((x, y, z)), [corners])
+    return Shape(manifold3d_module().Manifold.cube((x, y, z)), [corners])
 
 
 # --- mugs: one body, the handle absent or at three heights ----------------------------------
@@ -46,8 +39,8 @@ _MUG = [(0.038, 0.0), (0.0405, 0.004), (0.041, 0.012), (0.041, 0.095)]
 def _mug(handle_z: float | None) -> Callable[[], Shape]:
     def make() -> Shape:
         if handle_z is None:
-            return _open_vessel(_MUG, 0.0045, 0.008)
-        return _cup_like(_MUG, 0.0045, 0.008, handle_z, 0.018, 1.2, 0.006, 0.009, 0.01)
+            return open_vessel(_MUG, 0.0045, 0.008)
+        return cup_like(_MUG, 0.0045, 0.008, handle_z, 0.018, 1.2, 0.006, 0.009, 0.01)
 
     return make
 
@@ -97,7 +90,7 @@ def _bowl(depth: float, radius: float, foot: bool) -> Callable[[], Shape]:
             (radius - 0.004, 0.85 * depth),
             (radius, depth),
         ]
-        return _open_vessel(ctrl, 0.004, 0.008)
+        return open_vessel(ctrl, 0.004, 0.008)
 
     return make
 
@@ -105,7 +98,7 @@ def _bowl(depth: float, radius: float, foot: bool) -> Callable[[], Shape]:
 def _glass(r_bottom: float, r_top: float, h: float) -> Callable[[], Shape]:
     def make() -> Shape:
         ctrl = [(r_bottom, 0.0), (r_bottom + 0.001, 0.004), (r_top, h)]
-        return _open_vessel(ctrl, 0.003, 0.012)
+        return open_vessel(ctrl, 0.003, 0.012)
 
     return make
 
@@ -114,7 +107,7 @@ def _ball(rx: float, rz: float) -> Callable[[], Shape]:
     def make() -> Shape:
         a = np.linspace(-np.pi / 2, np.pi / 2, 33)[1:-1]
         pr = np.stack([rx * np.cos(a), rz + rz * np.sin(a)], 1)
-        return lathe(_half_section(pr))
+        return lathe(half_section(pr))
 
     return make
 
