@@ -61,9 +61,9 @@ def pose_spread(poses: np.ndarray, translation_cell: float, quaternion_cell: flo
     `build_observation_model` pools them. Cells wider than the spread of the objects' grid
     radii send the hand to one object's grid pose for all of them (docs/benchmark.md)."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-    _, first, inv = encode_rows(pose_keys(poses, translation_cell, quaternion_cell))
     if not len(poses):
         return np.zeros(0)
+    _, first, inv = encode_rows(pose_keys(poses, translation_cell, quaternion_cell))
     return np.linalg.norm(poses[:, :3] - poses[first[inv.reshape(-1)], :3], axis=1)
 
 

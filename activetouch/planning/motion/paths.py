@@ -77,8 +77,9 @@ def rrt_connect(
     step_m: float,
     with_object: bool = True,
 ) -> np.ndarray | None:
-    """A collision-free joint path q0 -> q1 (waypoints, simplified, re-checked densely) from
-    OMPL's RRT-Connect with the coal check as validity; None if none passes within `time_s`."""
+    """A collision-free joint path q0 -> q1 (waypoints, re-checked densely) from OMPL's
+    RRT-Connect with the coal check as validity: the shortcut path, else the raw one; None if
+    none passes within `time_s`."""
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
@@ -119,8 +120,12 @@ def rrt_connect(
         if not ss.solve(left) or not ss.haveExactSolutionPath():
             return None
         raw = _states(ss.getSolutionPath(), n)
-        ss.simplifySolution(min(0.2, max(0.0, deadline - time.perf_counter())))
-        for wp in (_states(ss.getSolutionPath(), n), raw):
+        candidates = [raw]
+        left = deadline - time.perf_counter()
+        if left > 1e-3:  # OMPL reads a zero budget as "simplify without a time limit"
+            ss.simplifySolution(min(0.2, left))
+            candidates.insert(0, _states(ss.getSolutionPath(), n))
+        for wp in candidates:
             if path_free(scene, wp, with_object, step_rad, step_m):
                 return wp
     return None

@@ -175,8 +175,8 @@ def pooling_line(poses: np.ndarray, cfg: Config) -> str:
     )
     if d.max() > SPREAD_ADVICE_M:
         line += (
-            "; for objects of varied sizes, finer cells (observation.translation_cell_m=0.01)"
-            " let the planner choose each size's poses (docs/benchmark.md)"
+            "; if the objects differ much in size, finer cells (observation.translation_cell_m"
+            "=0.01) let the planner choose each size's own poses (docs/benchmark.md)"
         )
     return line
 

@@ -9,9 +9,9 @@ import numpy as np
 
 from activetouch.sim.library.shapes import (
     Shape,
-    axis_to_z,
     cut_cavity,
     half_section,
+    half_turn_z,
     handle,
     inner_radius_max,
     lathe,
@@ -218,7 +218,7 @@ def make_teapot() -> Shape:
         ]
     )
     spout = tube(path, np.array([0.016, 0.012, 0.009, 0.0075, 0.0065]))
-    hdl = axis_to_z(handle((0.068 + 0.012, 0.058), 0.026, 1.3, 0.006, 0.008, x_cut=0.05))
+    hdl = half_turn_z(handle((0.068 + 0.012, 0.058), 0.026, 1.3, 0.006, 0.008, x_cut=0.05))
     return body + lid + spout + hdl
 
 

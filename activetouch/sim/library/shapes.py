@@ -249,7 +249,7 @@ def _signed_volume(verts: np.ndarray, faces: np.ndarray) -> float:
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
-def axis_to_z(shape: Shape) -> Shape:
+def half_turn_z(shape: Shape) -> Shape:
     """Turn a shape half a revolution about z (a handle built on +x moves to -x)."""
     return Shape(
         shape.solid.rotate((0.0, 0.0, 180.0)), [h * [-1.0, -1.0, 1.0] for h in shape.hulls]
