@@ -16,14 +16,15 @@ from collections.abc import Callable
 import numpy as np
 
 from activetouch.sim.library.paper import cup_like, open_vessel
-from activetouch.sim.library.shapes import Shape, half_section, lathe, manifold3d_module, profile
+from activetouch.sim.library.shapes import (
+    Shape,
+    half_section,
+    lathe,
+    manifold3d_module,
+    solid_of_revolution,
+)
 
 HARD_SET = "hard"
-
-
-def _solid(ctrl: list[tuple[float, float]]) -> Shape:
-    """A solid of revolution through the control points (r, z)."""
-    return lathe(half_section(profile(ctrl)))
 
 
 def _box(x: float, y: float, z: float) -> Shape:
@@ -61,7 +62,7 @@ def _bottle(neck: str) -> Callable[[], Shape]:
     }
 
     def make() -> Shape:
-        return _solid(body + necks[neck])
+        return solid_of_revolution(body + necks[neck])
 
     return make
 
@@ -71,7 +72,7 @@ def _bottle(neck: str) -> Callable[[], Shape]:
 
 def _cylinder(r_bottom: float, r_top: float, h: float) -> Callable[[], Shape]:
     def make() -> Shape:
-        return _solid([(r_bottom, 0.0), (r_top, h), (0.0, h + 0.0002)])
+        return solid_of_revolution([(r_bottom, 0.0), (r_top, h), (0.0, h + 0.0002)])
 
     return make
 
@@ -114,7 +115,7 @@ def _ball(rx: float, rz: float) -> Callable[[], Shape]:
 
 def _jar(lid_r: float) -> Callable[[], Shape]:
     def make() -> Shape:
-        return _solid(
+        return solid_of_revolution(
             [
                 (0.04, 0.0),
                 (0.0425, 0.005),

@@ -20,6 +20,7 @@ from activetouch.sim.library.shapes import (
     profile,
     radius_at,
     rect,
+    solid_of_revolution,
     tube,
     vessel_section,
 )
@@ -111,7 +112,7 @@ def make_bottle() -> Shape:
         (0.0135, 0.2415),
         (0.0, 0.2416),
     ]
-    return lathe(half_section(profile(ctrl)))
+    return solid_of_revolution(ctrl)
 
 
 def make_bottle_real() -> Shape:
@@ -138,7 +139,7 @@ def make_bottle_real() -> Shape:
         (0.014, 0.2),
         (0.0, 0.2001),
     ]
-    return lathe(half_section(profile(ctrl)))
+    return solid_of_revolution(ctrl)
 
 
 def make_jar_real() -> Shape:
@@ -156,7 +157,7 @@ def make_jar_real() -> Shape:
         (0.039, 0.122),
         (0.0, 0.1222),
     ]
-    return lathe(half_section(profile(ctrl)))
+    return solid_of_revolution(ctrl)
 
 
 def make_toilet_paper() -> Shape:
@@ -195,7 +196,7 @@ def make_teapot() -> Shape:
         (0.042, 0.098),
         (0.0405, 0.1),
     ]
-    body = lathe(half_section(profile(body_ctrl)))
+    body = solid_of_revolution(body_ctrl)
     lid_ctrl = [
         (0.043, 0.099),
         (0.0435, 0.1015),
@@ -207,7 +208,7 @@ def make_teapot() -> Shape:
         (0.0105, 0.136),
         (0.0, 0.139),
     ]
-    lid = lathe(half_section(profile(lid_ctrl, step=0.0015)))
+    lid = solid_of_revolution(lid_ctrl, step=0.0015)
     path = np.array(
         [
             [0.045, 0.0, 0.03],

@@ -168,6 +168,11 @@ def lathe(cs, tol: float = HULL_TOL_M) -> Shape:
     return Shape(revolve(cs), lathe_hulls(cs, tol))
 
 
+def solid_of_revolution(ctrl: list[tuple[float, float]], step: float = 0.002) -> Shape:
+    """A solid of revolution through the control points (r, z)."""
+    return lathe(half_section(profile(ctrl, step=step)))
+
+
 def mesh_manifold(verts: np.ndarray, faces: np.ndarray):
     m = manifold3d_module()
     man = m.Manifold(
