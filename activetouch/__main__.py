@@ -1,3 +1,3 @@
-from activetouch.service.cli import main
+from activetouch.cli.main import main
 
 raise SystemExit(main())

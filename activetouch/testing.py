@@ -45,7 +45,7 @@ from activetouch.planning.motion.floating import (
 
 if TYPE_CHECKING:
     from activetouch.recognition.dataset import ObjectGrasps
-    from activetouch.service.messages import SimPlaceRequest, SimPlaceResult
+    from activetouch.transport.messages import SimPlaceRequest, SimPlaceResult
 
 FAKE = "fake"
 
@@ -157,7 +157,7 @@ class FakeRig:
             return self._dataset
 
     def place(self, req: SimPlaceRequest) -> SimPlaceResult:
-        from activetouch.service.messages import SimPlaceResult
+        from activetouch.transport.messages import SimPlaceResult
 
         hand_cfg = self.ctx.cfg.hand
         ds = self.dataset(getattr(hand_cfg, "dataset", ""))

@@ -59,8 +59,8 @@ def parse_seeds(text: str) -> list[int]:
 def ensure_model(root: Path, objects: list[str], step_deg: float) -> Path:
     """The model for `objects` in `root`, trained now (floating twin) if missing."""
     from activetouch.model import load_model
-    from activetouch.service.training import collect, fit_and_save
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
+    from activetouch.pipelines.training import collect, fit_and_save
 
     out = paths.default_model(root)
     lib = ObjectLibrary(paths.objects_dir(root))
@@ -87,8 +87,8 @@ def run(
     from activetouch.errors import UnreachableError
     from activetouch.model import load_model
     from activetouch.planning.policies import make_policy
-    from activetouch.service.messages import SimPlaceRequest
-    from activetouch.service.session import RecognitionSession
+    from activetouch.session.loop import RecognitionSession
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(BAXTER_TOML, [*VARIANTS[variant], *overrides])
     model = load_model(paths.default_model(Path(root)))

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from activetouch.service.cli import main as cli
-from activetouch.service.evaluation import moves_capped, paired_stats, robot_s_capped
+from activetouch.cli.main import main as cli
+from activetouch.pipelines.evaluation import moves_capped, paired_stats, robot_s_capped
 
 BAXTER = ["--set", "arm.type=twin-baxter"]
 # name -> (what it is, policies, settings)

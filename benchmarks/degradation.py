@@ -23,7 +23,7 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.service.evaluation import (
+from activetouch.pipelines.evaluation import (
     Job,
     make_jobs,
     moves_capped,
@@ -31,7 +31,7 @@ from activetouch.service.evaluation import (
     parse_seeds,
     run_all,
 )
-from activetouch.service.recognize import load_trained, model_path
+from activetouch.session.local import load_trained, model_path
 
 # name -> (what it is, settings). The placement levels are the bounds (2 cm, 15 deg)
 # and half of them; sensor levels are single faults of plausible size (threshold 20 units,

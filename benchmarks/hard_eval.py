@@ -26,7 +26,7 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.service.evaluation import (
+from activetouch.pipelines.evaluation import (
     Job,
     make_jobs,
     moves_capped,
@@ -34,7 +34,7 @@ from activetouch.service.evaluation import (
     parse_seeds,
     run_all,
 )
-from activetouch.service.recognize import load_trained, model_path
+from activetouch.session.local import load_trained, model_path
 
 DEFAULT_ARMS = "tree,greedy,random,tree:planner.objective=info_gain"
 

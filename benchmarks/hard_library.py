@@ -17,9 +17,9 @@ import warnings
 from pathlib import Path
 
 from activetouch.config import load_config
+from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary, generated_set
 from activetouch.planning.grid import small_object_overrides
 from activetouch.sim.contact_probe import FEW_CONTACTS_WARN, probe_object
-from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary, generated_set
 
 
 def _names(arg: str) -> list[str]:

@@ -33,10 +33,10 @@ from activetouch.calibration.probing import FloatingFlange
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.config import Config, load_config
 from activetouch.model import TrainedModel, load_model
+from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.planning.motion.floating import FloatingWristMotion
 from activetouch.planning.policies import make_policy
-from activetouch.service.session import RecognitionSession
-from activetouch.sim.objects import PAPER_SIM_OBJECTS, ObjectLibrary
+from activetouch.session.loop import RecognitionSession
 from activetouch.sim.twin import open_twin, placement_error
 from activetouch.sim.world import geometry_from_config
 
@@ -44,7 +44,7 @@ MODES = ("nominal", "displaced", "calibrated")
 
 
 def trained(root: Path, cfg: Config, objects: list[str]) -> TrainedModel:
-    from activetouch.service.training import collect, fit_and_save
+    from activetouch.pipelines.training import collect, fit_and_save
 
     out = paths.default_model(root)
     if not (out / "model.json").is_file():

@@ -18,9 +18,9 @@ import sys
 import tempfile
 from pathlib import Path
 
-from activetouch.service.cli import main as cli
-from activetouch.service.report import saved_text
-from activetouch.sim.objects import PAPER_REAL_OBJECTS, PAPER_SIM_OBJECTS
+from activetouch.cli.main import main as cli
+from activetouch.objects.library import PAPER_REAL_OBJECTS, PAPER_SIM_OBJECTS
+from activetouch.pipelines.report import saved_text
 
 READING = """## Reading these figures
 

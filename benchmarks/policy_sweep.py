@@ -2,7 +2,7 @@
 
 Every *arm* is a policy plus configuration overrides, e.g. ``tree`` or
 ``tree:planner.lam=0,planner.simulations=200``. Each arm runs every (object, seed) through
-`activetouch.service.evaluation.run_all` (the same recognition the `eval` command runs, in
+`activetouch.pipelines.evaluation.run_all` (the same recognition the `eval` command runs, in
 parallel processes); runs are paired by (object, seed), which fixes the first random grasp
 and the twin's noise. The figure is moves to first correct, with "never" counted as budget
 + 1 (as `eval`'s capped mean). For every arm against every baseline arm the table shows the
@@ -34,7 +34,7 @@ from rich.table import Table
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.service.evaluation import (
+from activetouch.pipelines.evaluation import (
     Job,
     make_jobs,
     moves_capped,
@@ -42,7 +42,7 @@ from activetouch.service.evaluation import (
     parse_seeds,
     run_all,
 )
-from activetouch.service.recognize import load_trained, model_path
+from activetouch.session.local import load_trained, model_path
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import Config, load_config
-from activetouch.sim.objects import PAPER_SIM_OBJECTS
+from activetouch.objects.library import PAPER_SIM_OBJECTS
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -49,8 +49,8 @@ def parse_seeds(text: str) -> list[int]:
 def ensure_model(root: Path, objects: list[str], cfg: Config) -> Path:
     """The model for `objects` in `root`, trained now if it is missing or has other classes."""
     from activetouch.model import load_model
-    from activetouch.service.training import collect, fit_and_save
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
+    from activetouch.pipelines.training import collect, fit_and_save
 
     out = paths.default_model(root)
     lib = ObjectLibrary(paths.objects_dir(root))
@@ -94,8 +94,8 @@ def run_direct(
 ) -> list[dict[str, Any]]:
     """The twin hand closing itself (as `activetouch recognize` / `eval` run it)."""
     from activetouch.model import load_model
-    from activetouch.service.recognize import recognize_in_twin
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
+    from activetouch.session.local import recognize_in_twin
 
     cfg = load_config(None, list(overrides))
     model = load_model(paths.default_model(Path(root)))
@@ -116,9 +116,9 @@ def run_driver(
     from activetouch.drivers.reflex.common import StreamLostError
     from activetouch.model import load_model
     from activetouch.planning.policies import make_policy
-    from activetouch.service.messages import SimPlaceRequest
-    from activetouch.service.session import RecognitionSession
+    from activetouch.session.loop import RecognitionSession
     from activetouch.sim.devices import twin_rig
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(
         None,

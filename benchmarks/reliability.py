@@ -25,12 +25,12 @@ import time
 from pathlib import Path
 
 from activetouch import paths
+from activetouch.cli.commands.serve import resolve_mode
 from activetouch.config import load_config
-from activetouch.service.client import open_client
-from activetouch.service.commands.serve import resolve_mode
-from activetouch.service.daemon import Daemon, DaemonOptions
-from activetouch.service.messages import MAX_HORIZON, MAX_SIMULATIONS, RecognizeRequest
-from activetouch.service.zenoh_session import free_tcp_port
+from activetouch.daemon.client import open_client
+from activetouch.daemon.process import Daemon, DaemonOptions
+from activetouch.transport.messages import MAX_HORIZON, MAX_SIMULATIONS, RecognizeRequest
+from activetouch.transport.zenoh_session import free_tcp_port
 
 ROBOT = "benchbot"
 OBJECTS = ["cup", "sphere", "bottle"]
@@ -40,8 +40,8 @@ COARSE = ["grid.step_deg=40"]
 def ensure_model(home: Path) -> None:
     if (paths.default_model(home) / "model.json").is_file():
         return
-    from activetouch.service.training import collect, fit_and_save
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
+    from activetouch.pipelines.training import collect, fit_and_save
 
     cfg = load_config(None, COARSE)
     lib = ObjectLibrary(paths.objects_dir(home))

@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from activetouch import paths
-from activetouch.service.cli import main as cli
-from activetouch.service.evaluation import moves_capped, paired_stats
+from activetouch.cli.main import main as cli
+from activetouch.pipelines.evaluation import moves_capped, paired_stats
 
 HANDS = {
     "takktile": ("ReFlex TakkTile: 38 pressure sensors", []),

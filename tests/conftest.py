@@ -9,8 +9,8 @@ import pytest
 from activetouch import paths
 from activetouch.config import Config, load_config
 from activetouch.model import load_model
-from activetouch.service.training import collect, fit_and_save
-from activetouch.sim.objects import ObjectLibrary
+from activetouch.objects.library import ObjectLibrary
+from activetouch.pipelines.training import collect, fit_and_save
 
 SMALL_OBJECTS = ["cup", "sphere", "bottle"]
 
@@ -44,9 +44,9 @@ FAKE_ROBOT = "fakebot"
 def start_fake_daemon(trained_home: Path):
     """`start(overrides)` -> (Daemon, endpoint): the whole daemon in this process on the fake
     devices (no physics), on a free loopback port; closed at the end of the test."""
-    from activetouch.service.commands.serve import resolve_mode
-    from activetouch.service.daemon import Daemon, DaemonOptions
-    from activetouch.service.zenoh_session import free_tcp_port
+    from activetouch.cli.commands.serve import resolve_mode
+    from activetouch.daemon.process import Daemon, DaemonOptions
+    from activetouch.transport.zenoh_session import free_tcp_port
 
     started: list = []
 

@@ -82,7 +82,7 @@ def test_fake_arm_checks_limits_before_moving_and_keeps_a_stop() -> None:
 def test_fake_hand_replays_the_dataset_grasp_at_the_wrist_pose(trained_home: Path) -> None:
     from activetouch import paths
     from activetouch.recognition.dataset import Dataset
-    from activetouch.service.messages import SimPlaceRequest
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(None, ["hand.type=fake", "arm.type=fake"])
     devices = make_devices(cfg, trained_home)
@@ -105,11 +105,11 @@ FAKE_SERVE = """
 import json, sys, threading
 from pathlib import Path
 from activetouch.config import load_config
-from activetouch.service.daemon import DaemonOptions, serve
-from activetouch.service.client import open_client
-from activetouch.service.messages import RecognizeRequest
-from activetouch.service.commands.serve import resolve_mode
-from activetouch.service.zenoh_session import free_tcp_port
+from activetouch.daemon.process import DaemonOptions, serve
+from activetouch.daemon.client import open_client
+from activetouch.transport.messages import RecognizeRequest
+from activetouch.cli.commands.serve import resolve_mode
+from activetouch.transport.zenoh_session import free_tcp_port
 from activetouch import paths
 
 home = Path({home!r})
@@ -151,8 +151,8 @@ def test_serve_on_fake_devices_without_pybullet(trained_home: Path) -> None:
 def test_twin_rig_calls_its_after_place_hooks_once_the_object_stands(trained_home: Path) -> None:
     """`TwinRig.after_place`: devices on the twin hook into `sim/place` (the Baxter twin homes
     its arm there) instead of replacing `ctx.place`; each hook sees the new object placed."""
-    from activetouch.service.messages import SimPlaceRequest
     from activetouch.sim.devices import TWIN
+    from activetouch.transport.messages import SimPlaceRequest
 
     devices = make_devices(load_config(), trained_home)
     try:

@@ -51,8 +51,8 @@ from activetouch.planning.motion.base import Placement
 
 if TYPE_CHECKING:
     from activetouch.calibration.probing import Flange
-    from activetouch.sim.objects import ObjectSpec
-    from activetouch.sim.reflex_urdf import ReflexGeometry
+    from activetouch.models.reflex import ReflexGeometry
+    from activetouch.objects.library import ObjectSpec
 
 log = logging.getLogger(__name__)
 
@@ -120,7 +120,7 @@ def hand_boxes(
 ) -> Boxes:
     """The hand's collision boxes (as in the twin's URDF: housing, pad, swivels, proximal,
     distal and fingertip boxes) in the hand frame at these joint angles (open by default)."""
-    from activetouch.sim.reflex_urdf import (
+    from activetouch.models.reflex import (
         ReflexGeometry,
         finger_link_transforms,
         rot_y,
@@ -234,7 +234,7 @@ def sample_parts(parts: list[np.ndarray], spacing: float, seed: int = 0) -> np.n
 
 def object_shape(spec: ObjectSpec, spacing: float = 0.0015, coarse: int = 1500) -> ObjectShape:
     """The object's convex parts (what the twin collides with) as surface samples."""
-    from activetouch.sim.objects import read_obj_groups
+    from activetouch.objects.library import read_obj_groups
 
     parts = [g for path in spec.collision_meshes for g in read_obj_groups(Path(path))]
     if not parts:
@@ -426,7 +426,7 @@ def box_corners(boxes: Boxes) -> np.ndarray:
 
 def thumb_sites(geom: ReflexGeometry | None = None) -> np.ndarray:
     """Distances of the thumb's sensor sites from its base along the open (straight) thumb."""
-    from activetouch.sim.reflex_urdf import ReflexGeometry
+    from activetouch.models.reflex import ReflexGeometry
 
     g = geom or ReflexGeometry()
     return np.concatenate(

@@ -55,7 +55,7 @@ class FloatingFlange:
 def hand_points(preshape: float = 0.0, proximal=None, distal=None) -> np.ndarray:
     """(n, 3) corners of every finger link's collision boxes (proximal, distal, fingertip) in
     the hand frame at these joint angles (open by default): the hand's known geometry."""
-    from activetouch.sim.reflex_urdf import ReflexGeometry, finger_link_transforms, rot_y
+    from activetouch.models.reflex import ReflexGeometry, finger_link_transforms, rot_y
 
     g = ReflexGeometry()
     prox = np.zeros(N_FINGERS) if proximal is None else np.asarray(proximal)

@@ -23,4 +23,3 @@ def import_pybullet_quietly() -> None:
         os.dup2(saved, 2)
         os.close(saved)
         os.close(devnull)
-

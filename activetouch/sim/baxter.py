@@ -193,7 +193,7 @@ def library_hull(root: str, name: str, extents: tuple[float, ...]) -> np.ndarray
     try:
         import trimesh
 
-        from activetouch.sim.objects import ObjectLibrary
+        from activetouch.objects.library import ObjectLibrary
 
         spec = ObjectLibrary(Path(root)).get(name)
         pts = [trimesh.load(p, force="mesh").vertices for p in spec.collision_meshes]

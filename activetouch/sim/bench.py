@@ -81,8 +81,8 @@ def _place(world: SimWorld, obj: str, data: str | None) -> str:
         kind, size = PRIMITIVES[obj]
         world.place_primitive(kind, size)
         return obj
+    from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary
     from activetouch.paths import data_dir, objects_dir
-    from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary
 
     with _library_root(data) as root:
         if obj in BUILTIN_OBJECTS:

@@ -32,7 +32,7 @@ from activetouch.interfaces import (
 
 if TYPE_CHECKING:
     from activetouch.config import Config
-    from activetouch.service.messages import SimPlaceRequest, SimPlaceResult
+    from activetouch.transport.messages import SimPlaceRequest, SimPlaceResult
 
 log = logging.getLogger(__name__)
 
@@ -100,8 +100,8 @@ class TwinRig:
         self.after_place: list[Callable[[], None]] = []
 
     def place(self, req: SimPlaceRequest) -> SimPlaceResult:
-        from activetouch.service.messages import SimPlaceResult
-        from activetouch.sim.objects import ObjectLibrary
+        from activetouch.objects.library import ObjectLibrary
+        from activetouch.transport.messages import SimPlaceResult
 
         spec = ObjectLibrary(self.library_root).get(req.object)  # DataError names the known
         seed = self.hand.cfg.seed if req.seed is None else req.seed

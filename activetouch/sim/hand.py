@@ -67,7 +67,7 @@ from activetouch.interfaces import (
     HandState,
     StopLatch,
 )
-from activetouch.sim.reflex_urdf import (
+from activetouch.models.reflex import (
     N_PROXIMAL_SENSORS,
     coupled_joints,
     finger_sensor_positions,

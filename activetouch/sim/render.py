@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from activetouch.errors import DataError
-from activetouch.sim.objects import ObjectSpec, read_obj_groups
+from activetouch.objects.library import ObjectSpec, read_obj_groups
 
 LIGHT = np.array([0.35, -0.45, 0.82])  # from the upper front-left, like a desk lamp
 VIEWS = ((18.0, -58.0), (62.0, 32.0))  # (elevation, azimuth) of the two panels

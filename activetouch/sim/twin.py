@@ -16,6 +16,7 @@ import numpy as np
 from activetouch.config import SimConfig, WorkcellConfig
 from activetouch.errors import ConfigError
 from activetouch.interfaces import N_SENSORS, Grasp
+from activetouch.objects.library import ObjectSpec
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.floating import FloatingWristMotion
 from activetouch.recognition.faults import (
@@ -27,7 +28,6 @@ from activetouch.recognition.faults import (
     spurious_contacts,
 )
 from activetouch.sim.hand import SimHand
-from activetouch.sim.objects import ObjectSpec
 from activetouch.sim.world import HandContacts, SimArm, SimWorld
 
 _PLACEMENT_TAG = 0x91ACE  # keeps the placement draw apart from the hand's noise streams

@@ -44,17 +44,7 @@ from activetouch.interfaces import (
     Pose,
     StopLatch,
 )
-from activetouch.planning.motion.floating import (
-    WRIST_JOINTS,
-    floating_limits,
-    pose_to_wrist_joints,
-    wrap_angles,
-    wrist_joints_to_pose,
-    wrist_trajectory_positions,
-)
-from activetouch.sim.devices import PATHS
-from activetouch.sim.pybullet import pb
-from activetouch.sim.reflex_urdf import (
+from activetouch.models.reflex import (
     DISTAL_JOINTS,
     DISTAL_LINKS,
     N_PROXIMAL_SENSORS,
@@ -68,9 +58,19 @@ from activetouch.sim.reflex_urdf import (
     sensor_positions,
     urdf_file,
 )
+from activetouch.planning.motion.floating import (
+    WRIST_JOINTS,
+    floating_limits,
+    pose_to_wrist_joints,
+    wrap_angles,
+    wrist_joints_to_pose,
+    wrist_trajectory_positions,
+)
+from activetouch.sim.devices import PATHS
+from activetouch.sim.pybullet import pb
 
 if TYPE_CHECKING:
-    from activetouch.sim.objects import ObjectSpec
+    from activetouch.objects.library import ObjectSpec
 
 FAR_AWAY = (0.0, 0.0, 1.0e3)  # where the hand goes to drop Bullet's cached contact manifolds
 
@@ -245,7 +245,7 @@ class SimWorld:
         """Put a library object on the table (removing any previous one); its body id.
         `offset_xy` (metres) and `yaw_rad` (about the vertical through its centre) misplace
         the body without telling the object frame (see the module notes)."""
-        from activetouch.sim.objects import spawn_object  # the object library's loader
+        from activetouch.objects.library import spawn_object  # the object library's loader
 
         self.clear()
         ext = np.asarray(spec.extents, dtype=np.float64)
@@ -596,8 +596,6 @@ class SimArm(Arm):
 
     def clear_stop(self) -> None:
         self.stop_latch.clear()
-
-
 
 
 __all__: list[Any] = [

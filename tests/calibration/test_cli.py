@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from activetouch.service.cli import main
+from activetouch.cli.main import main
 
 from .board import NoisyBoard
 

@@ -10,12 +10,12 @@ import pytest
 
 from activetouch.calibration.fingers import FingerSettings, calibrate_fingers, taut_point
 from activetouch.calibration.tactile import CalibrationRefusedError
-from activetouch.drivers.reflex.emulator_takktile import (
+from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
+from activetouch.emulators.reflex_takktile import (
     EmulatorConfig,
     KinematicFingers,
     TakktileEmulator,
 )
-from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 
 from .board import free_udp_port
 

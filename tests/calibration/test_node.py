@@ -7,15 +7,15 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from activetouch.service.calibration_node import (
+from activetouch.daemon.calibration_node import (
     CalibrateRequest,
     CalibrateResult,
     CalibrationNode,
     calibrate_key,
 )
-from activetouch.service.keys import Keys
-from activetouch.service.messages import Reply, decode, encode
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.keys import Keys
+from activetouch.transport.messages import Reply, decode, encode
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 
 ROBOT = "calbot"
 
@@ -24,7 +24,7 @@ ROBOT = "calbot"
 def twin_devices(tmp_path_factory) -> Iterator:
     from activetouch.config import load_config
     from activetouch.devices import make_devices
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
 
     root = tmp_path_factory.mktemp("home")
     ObjectLibrary.in_data_dir(root).ensure_builtins(["sphere"])
@@ -68,7 +68,7 @@ def test_object_needs_a_name_and_bad_requests_are_refused(served):
 
 @pytest.mark.slow
 def test_object_query_runs_the_procedure_on_the_devices(served, twin_devices, tmp_path):
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
 
     ObjectLibrary.in_data_dir(twin_devices.ctx.data).get("sphere")
     twin_devices.ctx.place(_place_request("sphere"))
@@ -83,6 +83,6 @@ def test_object_query_runs_the_procedure_on_the_devices(served, twin_devices, tm
 
 
 def _place_request(name: str):
-    from activetouch.service.messages import SimPlaceRequest
+    from activetouch.transport.messages import SimPlaceRequest
 
     return SimPlaceRequest(object=name, seed=0)

@@ -238,7 +238,7 @@ def test_placement_at_moves_and_turns():
 
 @pytest.fixture(scope="module")
 def library(tmp_path_factory):
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
 
     lib = ObjectLibrary(tmp_path_factory.mktemp("objects"))
     lib.ensure_builtins(["mug", "sphere", "bottle"])

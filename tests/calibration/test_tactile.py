@@ -15,13 +15,13 @@ from activetouch.calibration.tactile import (
     fit_tactile,
     touching_reasons,
 )
-from activetouch.drivers.reflex.emulator_takktile import (
+from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
+from activetouch.emulators.reflex_takktile import (
     EmulatorConfig,
     Faults,
     KinematicFingers,
     TakktileEmulator,
 )
-from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 
 from .board import NoisyBoard, free_udp_port
 

@@ -15,15 +15,15 @@ import numpy as np
 import pytest
 import zenoh
 
-from activetouch.service.client import open_client
-from activetouch.service.keys import Keys
-from activetouch.service.logs import MAX_VALUE_CHARS, LogfmtFormatter
-from activetouch.service.messages import (
+from activetouch.daemon.client import open_client
+from activetouch.daemon.logs import MAX_VALUE_CHARS, LogfmtFormatter
+from activetouch.transport.keys import Keys
+from activetouch.transport.messages import (
     MAX_HORIZON,
     MAX_SIMULATIONS,
     RecognizeRequest,
 )
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 from tests.conftest import FAKE_ROBOT
 
 MAX_ERROR_CHARS = 5000  # an error reply, whole, JSON included
@@ -207,7 +207,7 @@ def test_status_and_errors_do_not_reveal_local_paths(start_fake_daemon, trained_
 
 def test_listening_beyond_loopback_without_tls_warns() -> None:
     from activetouch.config import ServiceConfig
-    from activetouch.service.daemon import exposed_endpoints
+    from activetouch.daemon.process import exposed_endpoints
 
     svc = ServiceConfig(listen=["tcp/0.0.0.0:7447", "tcp/[::]:7448", "tcp/127.0.0.1:7449"])
     assert exposed_endpoints(svc) == ["tcp/0.0.0.0:7447", "tcp/[::]:7448"]
@@ -218,7 +218,7 @@ def test_a_planted_cache_directory_is_not_used(tmp_path, monkeypatch) -> None:
     import os
     import tempfile
 
-    from activetouch.sim.reflex_urdf import private_cache_dir
+    from activetouch.models.reflex import private_cache_dir
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     planted = tmp_path / f"activetouch-{os.getuid()}"
@@ -232,7 +232,7 @@ def test_a_planted_cache_directory_is_not_used(tmp_path, monkeypatch) -> None:
 def test_sigterm_exits_within_5_s_during_the_largest_plan(trained_home, tmp_path) -> None:
     import signal
 
-    from activetouch.service.zenoh_session import free_tcp_port
+    from activetouch.transport.zenoh_session import free_tcp_port
     from tests.service.test_daemon import DaemonProcess
 
     port = free_tcp_port()

@@ -11,8 +11,8 @@ import pytest
 
 from activetouch.errors import DataError
 from activetouch.interfaces import Grasp, Pose
+from activetouch.pipelines.collect import SKIPPED_ATTR, pending_poses
 from activetouch.recognition.dataset import MANIFEST, Dataset, GraspRecord
-from activetouch.service.collect import SKIPPED_ATTR, pending_poses
 
 
 def _record(pose_id: int) -> GraspRecord:

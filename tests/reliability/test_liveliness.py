@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import time
 
-from activetouch.service.nodes import AliveNodes, HandNode, RemoteHand
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.daemon.nodes import AliveNodes, HandNode, RemoteHand
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 from tests.service.test_nodes import FakeHand
 
 ROBOT = "spoofbot"

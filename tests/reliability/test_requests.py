@@ -8,7 +8,7 @@ import json
 import pytest
 
 from activetouch.errors import MessageError
-from activetouch.service.messages import (
+from activetouch.transport.messages import (
     MAX_DEPTH,
     MAX_ERROR_TEXT,
     MAX_HORIZON,

@@ -9,12 +9,12 @@ from collections.abc import Iterator
 
 import pytest
 
+from activetouch.daemon.client import DaemonClient
+from activetouch.daemon.nodes import RemoteHand
 from activetouch.errors import NodeUnavailableError
-from activetouch.service.client import DaemonClient
-from activetouch.service.keys import DAEMON_NODE, HAND_NODE, Keys
-from activetouch.service.messages import RecognizeRequest
-from activetouch.service.nodes import RemoteHand
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.keys import DAEMON_NODE, HAND_NODE, Keys
+from activetouch.transport.messages import RecognizeRequest
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 
 ROBOT = "silent"
 

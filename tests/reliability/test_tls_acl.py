@@ -26,11 +26,11 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from activetouch.daemon.client import open_client
 from activetouch.errors import NodeUnavailableError
-from activetouch.service.client import open_client
-from activetouch.service.keys import DAEMON_NODE, HAND_NODE, Keys
-from activetouch.service.messages import RecognizeRequest
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.keys import DAEMON_NODE, HAND_NODE, Keys
+from activetouch.transport.messages import RecognizeRequest
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 from tests.service.test_daemon import START_TIMEOUT, DaemonProcess
 
 ROOT = Path(__file__).resolve().parents[2]

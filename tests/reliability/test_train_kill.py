@@ -81,7 +81,7 @@ def _grasps(home: Path) -> int:
 
 @pytest.mark.slow
 def test_kill_9_of_train_leaves_nothing_running_and_loses_nothing(tmp_path: Path) -> None:
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
 
     home = tmp_path / "home"
     # The meshes first: generating them takes longer than the kills below wait.

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from activetouch.errors import DataError
-from activetouch.sim.objects import load_mesh
+from activetouch.objects.library import load_mesh
 
 CUBE_OBJ = "".join(
     f"v {x} {y} {z}\n" for x in (0, 0.1) for y in (0, 0.1) for z in (0, 0.1)

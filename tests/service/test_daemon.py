@@ -19,17 +19,17 @@ from typing import Any
 
 import pytest
 
-from activetouch.errors import ActiveTouchError, DataError, MessageError, NodeUnavailableError
-from activetouch.service.cli import main as cli_main
-from activetouch.service.client import (
+from activetouch.cli.main import main as cli_main
+from activetouch.daemon.client import (
     BusyError,
     DaemonClient,
     RecognitionAbortedError,
     open_client,
 )
-from activetouch.service.daemon import LogfmtFormatter, sd_notify, watchdog_period
-from activetouch.service.messages import Progress, RecognizeRequest
-from activetouch.service.zenoh_session import free_tcp_port
+from activetouch.daemon.process import LogfmtFormatter, sd_notify, watchdog_period
+from activetouch.errors import ActiveTouchError, DataError, MessageError, NodeUnavailableError
+from activetouch.transport.messages import Progress, RecognizeRequest
+from activetouch.transport.zenoh_session import free_tcp_port
 
 ROBOT = "testbot"
 START_TIMEOUT = 60.0  # a cold start imports numba, pybullet and loads the model
@@ -253,7 +253,7 @@ def test_deploy_files_are_valid() -> None:
     import zenoh
 
     from activetouch.config import load_config
-    from activetouch.service.daemon import check_service_config
+    from activetouch.daemon.process import check_service_config
 
     cfg = load_config(DEPLOY / "activetouch.toml")  # every key known, every type right
     check_service_config(cfg.service)

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from activetouch import paths
+from activetouch.cli.main import main
 from activetouch.errors import ConfigError
-from activetouch.service.cli import main
-from activetouch.service.evaluation import (
+from activetouch.pipelines.evaluation import (
     bootstrap_ci,
     first_correct,
     first_stable_correct,
@@ -133,7 +133,7 @@ def test_eval_user_mistakes(trained_home, tmp_path, capsys):
 
 
 def test_robot_seconds_to_first_correct_are_summarised_and_paired():
-    from activetouch.service.evaluation import robot_s_at
+    from activetouch.pipelines.evaluation import robot_s_at
 
     assert robot_s_at([4.0, 9.0, 13.0], 2) == 9.0
     assert robot_s_at([4.0, 9.0], None) is None and robot_s_at([], 1) is None

@@ -9,12 +9,12 @@ import types
 
 import pytest
 
+from activetouch.cli.main import main
 from activetouch.config import load_config
 from activetouch.errors import ConfigError
-from activetouch.service import evaluation
-from activetouch.service.cli import main
-from activetouch.service.evaluation import error_overrides, robot_errors, run_all
-from activetouch.service.executors import RAY_LOCAL_ONLY_ENV
+from activetouch.pipelines import evaluation
+from activetouch.pipelines.evaluation import error_overrides, robot_errors, run_all
+from activetouch.pipelines.executors import RAY_LOCAL_ONLY_ENV
 
 
 def test_error_flags_become_settings():

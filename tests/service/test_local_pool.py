@@ -12,7 +12,7 @@ from pathlib import Path
 
 POOL = """
 import concurrent.futures as cf, multiprocessing as mp, os, time
-from activetouch.service.executors import exit_with_parent
+from activetouch.pipelines.executors import exit_with_parent
 if __name__ == "__main__":
     pool = cf.ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"),
                                   initializer=exit_with_parent, initargs=(os.getpid(),))

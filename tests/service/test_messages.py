@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 
 from activetouch.errors import ConfigError, MessageError, UnreachableError
 from activetouch.interfaces import N_SENSORS, Grasp, HandState, JointState, JointTrajectory, Pose
-from activetouch.service import messages as m
-from activetouch.service.keys import Keys, validate_robot
-from activetouch.service.zenoh_session import ZenohSettings, make_config, validate_endpoint
+from activetouch.transport import messages as m
+from activetouch.transport.keys import Keys, validate_robot
+from activetouch.transport.zenoh_session import ZenohSettings, make_config, validate_endpoint
 
 
 def _grasp() -> Grasp:

@@ -22,7 +22,7 @@ KEYS = (
 
 @pytest.mark.slow
 def test_bench_motion_writes_the_issue_figures(tmp_path, capsys) -> None:
-    from activetouch.service.cli import main
+    from activetouch.cli.main import main
 
     out = tmp_path / "motion.json"
     argv = ["bench", "motion", "--targets", "20", "--moves", "6", "--objects", "cup"]

@@ -9,6 +9,14 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from activetouch.daemon.nodes import (
+    AliveNodes,
+    ArmNode,
+    HandNode,
+    Latest,
+    RemoteArm,
+    RemoteHand,
+)
 from activetouch.errors import (
     DataError,
     MessageError,
@@ -28,8 +36,8 @@ from activetouch.interfaces import (
     Pose,
 )
 from activetouch.planning.motion.base import WristMotion
-from activetouch.service.keys import Keys
-from activetouch.service.messages import (
+from activetouch.transport.keys import Keys
+from activetouch.transport.messages import (
     Empty,
     HandStateMsg,
     JointStateMsg,
@@ -41,15 +49,7 @@ from activetouch.service.messages import (
     encode,
     pose_to_msg,
 )
-from activetouch.service.nodes import (
-    AliveNodes,
-    ArmNode,
-    HandNode,
-    Latest,
-    RemoteArm,
-    RemoteHand,
-)
-from activetouch.service.zenoh_session import (
+from activetouch.transport.zenoh_session import (
     ZenohSession,
     ZenohSettings,
     free_tcp_port,
@@ -214,9 +214,7 @@ def hand_node(hand: FakeHand, node_session: ZenohSession) -> HandNode:
 
 @pytest.fixture
 def arm_node(arm: FakeArm, node_session: ZenohSession) -> ArmNode:
-    return node_session.closing(
-        ArmNode(arm, node_session.session, ROBOT, wrist=arm, state_hz=50.0)
-    )
+    return node_session.closing(ArmNode(arm, node_session.session, ROBOT, wrist=arm, state_hz=50.0))
 
 
 @pytest.fixture
@@ -471,9 +469,7 @@ def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_sess
         s = node_session.session
         hand_node = HandNode(sim_hand.SimHand(world), s, ROBOT, state_hz=20.0, lock=lock)
         sim_arm = sim_world.SimArm(world)
-        arm_node = ArmNode(
-            sim_arm, s, ROBOT, wrist=twin_wrist(sim_arm), state_hz=20.0, lock=lock
-        )
+        arm_node = ArmNode(sim_arm, s, ROBOT, wrist=twin_wrist(sim_arm), state_hz=20.0, lock=lock)
         try:
             c = client_session.session
             with RemoteHand(c, ROBOT, timeout=5.0) as hand, RemoteArm(c, ROBOT, 5.0) as arm:
@@ -501,8 +497,8 @@ EXIT_SCRIPT = """
 import sys
 sys.path.insert(0, {tests!r})
 from test_nodes import FakeArm, FakeHand
-from activetouch.service.nodes import ArmNode, HandNode, RemoteHand
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.daemon.nodes import ArmNode, HandNode, RemoteHand
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 ep = f"tcp/127.0.0.1:{{free_tcp_port()}}"
 node = ZenohSession(ZenohSettings(listen=(ep,)))
 client = ZenohSession(ZenohSettings.client(ep))
@@ -634,8 +630,8 @@ class StreamingHand(FakeHand):
 def test_a_streaming_hand_is_published_beside_a_running_grasp(
     node_session: ZenohSession, client_session: ZenohSession
 ) -> None:
-    from activetouch.service.messages import HandStateMsg
-    from activetouch.service.nodes import Latest
+    from activetouch.daemon.nodes import Latest
+    from activetouch.transport.messages import HandStateMsg
 
     hand = StreamingHand()
     node_session.closing(HandNode(hand, node_session.session, ROBOT, state_hz=50.0))

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from activetouch.cli.main import main
+from activetouch.pipelines.executors import RAY_LOCAL_ONLY_ENV
 from activetouch.recognition.dataset import Dataset
-from activetouch.service.cli import main
-from activetouch.service.executors import RAY_LOCAL_ONLY_ENV
 
 # Not imported here: the code must be the first to import Ray (executors.RAY_LOCAL_ONLY_ENV).
 pytestmark = pytest.mark.skipif(

@@ -12,8 +12,8 @@ import time
 
 import pytest
 
-from activetouch.service.client import RecognitionAbortedError, open_client
-from activetouch.service.messages import RecognizeRequest
+from activetouch.daemon.client import RecognitionAbortedError, open_client
+from activetouch.transport.messages import RecognizeRequest
 
 ROBOT = "fakebot"
 
@@ -73,8 +73,8 @@ def test_the_next_recognition_clears_the_stop(fake_daemon) -> None:
 
 CLIENT = """
 import sys
-from activetouch.service.client import open_client
-from activetouch.service.messages import RecognizeRequest
+from activetouch.daemon.client import open_client
+from activetouch.transport.messages import RecognizeRequest
 with open_client([{ep!r}], {robot!r}, timeout=10.0) as c:
     c.recognize(
         RecognizeRequest(policy="random", max_moves=50, seed=0, object="cup"),
@@ -120,7 +120,7 @@ def test_a_killed_client_cancels_its_recognition(fake_daemon, detached: bool) ->
 
 
 def test_arm_cli_enables_through_the_arm_node(start_fake_daemon, capsys) -> None:
-    from activetouch.service.cli import main as cli_main
+    from activetouch.cli.main import main as cli_main
 
     _daemon, ep = start_fake_daemon()
     assert cli_main(["arm", "enable", "--connect", ep, "--robot", ROBOT]) == 0

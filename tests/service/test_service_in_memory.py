@@ -12,10 +12,10 @@ import msgspec
 
 from activetouch import paths
 from activetouch.config import load_config
+from activetouch.daemon.recognition_service import RecognitionService, local_links
 from activetouch.devices import make_devices
-from activetouch.service.keys import Keys
-from activetouch.service.messages import RecognizeRequest
-from activetouch.service.recognition_service import RecognitionService, local_links
+from activetouch.transport.keys import Keys
+from activetouch.transport.messages import RecognizeRequest
 from tests.conftest import SMALL_OBJECTS
 
 ROBOT = "memory"

@@ -9,18 +9,18 @@ import pytest
 from activetouch import paths
 from activetouch.errors import ConfigError, UnreachableError
 from activetouch.interfaces import Grasp, Pose
+from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.policies import make_policy
 from activetouch.recognition.grasp_likelihood import softmax_belief
-from activetouch.service.recognize import recognize_in_twin
-from activetouch.service.session import (
+from activetouch.session.local import recognize_in_twin
+from activetouch.session.loop import (
     NO_LABEL,
     RecognitionSession,
     belief_table_of,
     display_label,
     grasp_likelihood_of,
 )
-from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
 from tests.conftest import SMALL_OBJECTS, small_config
 
@@ -219,7 +219,7 @@ def _session_on_fakes(home, model, hand_wrap, max_moves=3):
     from activetouch.config import load_config
     from activetouch.devices import make_devices
     from activetouch.planning.motion.base import workcell_placement
-    from activetouch.service.messages import SimPlaceRequest
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(None, ["hand.type=fake", "arm.type=fake"])
     devices = make_devices(cfg, home)

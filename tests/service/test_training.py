@@ -6,14 +6,13 @@ import sys
 import pytest
 
 from activetouch import paths
+from activetouch.cli.main import main
 from activetouch.errors import DataError
 from activetouch.model import train_model
-from activetouch.planning.grid import object_grids
-from activetouch.recognition.dataset import Dataset
-from activetouch.service.cli import main
-from activetouch.service.collect import SKIPPED_ATTR, collect_object
-from activetouch.service.executors import RAY_LOCAL_ONLY_ENV
-from activetouch.service.training import (
+from activetouch.objects.library import ObjectLibrary
+from activetouch.pipelines.collect import SKIPPED_ATTR, collect_object
+from activetouch.pipelines.executors import RAY_LOCAL_ONLY_ENV
+from activetouch.pipelines.training import (
     Grasped,
     _collect_into,
     _collect_remote,
@@ -22,7 +21,8 @@ from activetouch.service.training import (
     fit_and_save,
     grid_pose_ids,
 )
-from activetouch.sim.objects import ObjectLibrary
+from activetouch.planning.grid import object_grids
+from activetouch.recognition.dataset import Dataset
 from activetouch.sim.twin import open_twin
 from tests.conftest import small_config
 
@@ -261,7 +261,7 @@ def test_collection_skips_the_poses_the_arm_cannot_reach_without_moving(tmp_path
 
 
 def test_train_prints_how_many_grid_poses_the_arm_reaches(tmp_path, capsys, monkeypatch):
-    from activetouch.service import training
+    from activetouch.pipelines import training
 
     real = training.collect
 

@@ -1,6 +1,6 @@
 import json
 
-from activetouch.service.cli import main
+from activetouch.cli.main import main
 
 
 def test_train_bench_reports_consistent_figures(tmp_path):

@@ -183,8 +183,8 @@ def test_recognition_on_the_twin_hand_and_the_baxter_twin(trained_home, small_mo
     from activetouch.devices import make_devices
     from activetouch.planning.motion.robot import hand_pose
     from activetouch.planning.policies import make_policy
-    from activetouch.service.messages import SimPlaceRequest
-    from activetouch.service.session import RecognitionSession
+    from activetouch.session.loop import RecognitionSession
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(BAXTER_TOML, ["session.max_skips=200"])
     devices = make_devices(cfg, trained_home)
@@ -224,9 +224,9 @@ def test_recognition_on_the_twin_hand_and_the_baxter_twin(trained_home, small_mo
 def test_place_homes_the_arm_through_the_rigs_after_place_hook(trained_home, baxter) -> None:
     """twin-baxter hooks its homing into `TwinRig.after_place` (ctx.place stays the rig's)."""
     from activetouch.devices import DeviceContext
-    from activetouch.service.messages import SimPlaceRequest
     from activetouch.sim.baxter import BAXTER_MODEL
     from activetouch.sim.devices import TWIN
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(BAXTER_TOML)
     ctx = DeviceContext(cfg, trained_home)
@@ -250,7 +250,7 @@ def test_recognize_cli_on_the_baxter_twin_reports_robot_seconds(trained_home, ca
     """`activetouch recognize --set arm.type=twin-baxter` (the default workcell becomes
     Baxter's, as in deploy/baxter-twin.toml): the poses Baxter cannot reach are ruled out
     first, the JSON has the robot time."""
-    from activetouch.service.cli import main
+    from activetouch.cli.main import main
 
     common = ["recognize", "--object", "cup", "--data", str(trained_home)]
     common += ["--set", "arm.type=twin-baxter", "--set", "grid.step_deg=40"]

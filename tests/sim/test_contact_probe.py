@@ -7,6 +7,7 @@ import pytest
 
 from activetouch.config import load_config
 from activetouch.interfaces import Grasp
+from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.grid import small_object_overrides
 from activetouch.sim.contact_probe import (
     FEW_CONTACTS_WARN,
@@ -15,7 +16,6 @@ from activetouch.sim.contact_probe import (
     probe_object,
     share_of,
 )
-from activetouch.sim.objects import ObjectLibrary
 
 
 def _grasp(n: int) -> Grasp:

@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from activetouch.config import SimConfig
 from activetouch.interfaces import SENSORS_PER_FINGER, Grasp, Pose
+from activetouch.models.reflex import coupled_joints
 from activetouch.sim.hand import (
     STOP_CONTACT,
     STOP_LIMIT,
@@ -20,7 +21,6 @@ from activetouch.sim.hand import (
     site_forces,
     spread_kernel,
 )
-from activetouch.sim.reflex_urdf import coupled_joints
 from activetouch.sim.twin import twin_wrist
 from activetouch.sim.world import SimArm, SimWorld
 

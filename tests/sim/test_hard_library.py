@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from activetouch.errors import ActiveTouchError
-from activetouch.sim.library.hard import HARD_OBJECTS, family
-from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary, generated_set
+from activetouch.objects.hard import HARD_OBJECTS, family
+from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary, generated_set
 
 
 def test_the_set_is_large_and_apart_from_the_paper_sets() -> None:

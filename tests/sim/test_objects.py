@@ -15,9 +15,9 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from activetouch.errors import ActiveTouchError, DataError
-from activetouch.sim import objects as obj
-from activetouch.sim.library import paper
-from activetouch.sim.objects import (
+from activetouch.objects import library as obj
+from activetouch.objects import paper
+from activetouch.objects.library import (
     BUILTIN_OBJECTS,
     PAPER_REAL_OBJECTS,
     PAPER_SIM_OBJECTS,

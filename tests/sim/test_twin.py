@@ -8,8 +8,8 @@ import trimesh
 from activetouch.config import Config
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import Pose
+from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.grid import training_grid
-from activetouch.sim.objects import ObjectLibrary
 from activetouch.sim.twin import open_twin
 
 

@@ -10,7 +10,7 @@ import trimesh
 from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.interfaces import SENSORS_PER_FINGER
-from activetouch.sim.objects import ObjectLibrary
+from activetouch.objects.library import ObjectLibrary
 from activetouch.sim.pybullet import pb
 from activetouch.sim.twin import (
     FaultySimHand,

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from activetouch.config import SimConfig
 from activetouch.errors import ActiveTouchError, StoppedError, UnreachableError
 from activetouch.interfaces import JointTrajectory, Pose
-from activetouch.sim.reflex_urdf import (
+from activetouch.models.reflex import (
     DISTAL_SENSOR_X_GAZEBO,
     DISTAL_SENSOR_Z_GAZEBO,
     ReflexGeometry,
@@ -277,7 +277,7 @@ def test_a_stop_stays_in_force_until_cleared(world: SimWorld) -> None:
 
 
 def test_library_object_is_placed_by_its_spawner(world: SimWorld, tmp_path) -> None:
-    objects = pytest.importorskip("activetouch.sim.objects")
+    objects = pytest.importorskip("activetouch.objects.library")
     lib = objects.ObjectLibrary(tmp_path / "objects")
     lib.ensure_builtins(["sphere"])
     spec = lib.get("sphere")

@@ -18,7 +18,7 @@ ROS 1 bytes on the bridge's keys (`activetouch.drivers.baxter.ros1`).
 - Enabling is explicit (`enable`, `disable`, `reset`); `enable_on_connect` opts in.
 - ``emulate = "twin"``: no robot; the same driver against the byte-level emulator in this
   process on loopback Zenoh, its joints carrying the Baxter twin's arm and hand
-  (`activetouch.drivers.baxter.twin_emulated`); it counts as simulated.
+  (`activetouch.rigs.baxter_emulated`); it counts as simulated.
 """
 
 from __future__ import annotations
@@ -143,7 +143,7 @@ class BaxterArmConfig(ArmConfig):
     def make(self, ctx: DeviceContext) -> Arm:
         self.check()
         if self.emulate == "twin":
-            from activetouch.drivers.baxter.twin_emulated import make_twin_emulated
+            from activetouch.rigs.baxter_emulated import make_twin_emulated
 
             return make_twin_emulated(self, ctx)
         return BaxterArm(self)
@@ -153,7 +153,7 @@ class BaxterArmConfig(ArmConfig):
         object shape from the twin world); on the robot the workcell's table and object frame
         (the object has no shape yet: transits do not avoid it)."""
         if self.emulate == "twin":
-            from activetouch.drivers.baxter.twin_emulated import make_twin_emulated_wrist
+            from activetouch.rigs.baxter_emulated import make_twin_emulated_wrist
 
             return make_twin_emulated_wrist(self, arm, ctx)
         from activetouch.planning.motion.base import workcell_placement
@@ -267,7 +267,7 @@ class BaxterArm(Arm):
         else:
             from pathlib import Path
 
-            from activetouch.service.zenoh_session import ZenohSession, ZenohSettings
+            from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 
             self._zs = ZenohSession(
                 ZenohSettings(

@@ -83,9 +83,9 @@ def distal_approx(motor: np.ndarray, proximal: np.ndarray) -> np.ndarray:
 
 def contact_sites(preshape: float, proximal: np.ndarray, distal: np.ndarray) -> np.ndarray:
     """(38, 3) hand-frame sensor-site XYZ at these angles: the same kinematics the twin uses
-    (`activetouch.sim.reflex_urdf`, pure numpy, no PyBullet), so grasps from the hardware and
+    (`activetouch.models.reflex`, pure numpy, no PyBullet), so grasps from the hardware and
     the twin are in one frame."""
-    from activetouch.sim.reflex_urdf import ReflexGeometry, sensor_positions
+    from activetouch.models.reflex import ReflexGeometry, sensor_positions
 
     return sensor_positions(_geometry(ReflexGeometry), preshape, proximal, distal)
 

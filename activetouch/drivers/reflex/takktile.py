@@ -141,7 +141,7 @@ class ReflexTakktileConfig(HandConfig):
     def make(self, ctx: DeviceContext) -> Hand:
         self.check()
         if self.emulate == "twin":
-            from activetouch.drivers.reflex.twin_emulated import make_twin_emulated
+            from activetouch.rigs.reflex_emulated import make_twin_emulated
 
             return make_twin_emulated(self, ctx)
         hand = ReflexTakktileHand(self)

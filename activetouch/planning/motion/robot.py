@@ -185,7 +185,7 @@ def _box_geometry(pin, coal, name: str, joint: int, frame: int, placement, lo, h
 
 def reflex_boxes(preshape: float = 0.0) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
     """The open ReFlex's collision boxes: (name, 4x4 pose in the hand frame, lo, hi)."""
-    from activetouch.sim.reflex_urdf import ReflexGeometry, finger_link_transforms
+    from activetouch.models.reflex import ReflexGeometry, finger_link_transforms
 
     g = ReflexGeometry()
     out = [

@@ -12,7 +12,7 @@ import pytest
 from activetouch.devices import device_config
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArm, BaxterArmConfig, TrackingError
-from activetouch.drivers.baxter.emulator import BaxterEmulator, EmulatorSettings
+from activetouch.emulators.baxter_bridge import BaxterEmulator, EmulatorSettings
 from activetouch.errors import (
     ConfigError,
     NodeUnavailableError,
@@ -20,7 +20,7 @@ from activetouch.errors import (
     UnreachableError,
 )
 from activetouch.interfaces import JointTrajectory
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 from tests.drivers.baxter import handbuilt as hb
 
 LEFT = ros1.joint_names("left")

@@ -10,8 +10,8 @@ import time
 import numpy as np
 import pytest
 
-from activetouch.drivers.baxter.emulator import BaxterEmulator, EmulatorSettings
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.emulators.baxter_bridge import BaxterEmulator, EmulatorSettings
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 
 DRIVER = textwrap.dedent(
     """

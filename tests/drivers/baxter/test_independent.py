@@ -11,11 +11,11 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from activetouch.daemon.nodes import ArmNode, RemoteArm
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArm, BaxterArmConfig
 from activetouch.interfaces import JointTrajectory
-from activetouch.service.nodes import ArmNode, RemoteArm
-from activetouch.service.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 from tests.drivers.baxter import handbuilt as hb
 
 ROBOT = "baxter-test"

@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from activetouch.drivers.baxter import emulator as emu
 from activetouch.drivers.baxter import ros1
+from activetouch.emulators import baxter_bridge as emu
 from activetouch.errors import ConfigError, MessageError
 from tests.drivers.baxter import handbuilt as hb
 

@@ -19,9 +19,9 @@ from activetouch.config import load_config
 from activetouch.devices import device_config
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArmConfig
-from activetouch.drivers.baxter.twin_emulated import TwinEmulatedBaxterArm, start_emulated
 from activetouch.errors import ConfigError, StoppedError, UnreachableError
 from activetouch.interfaces import JointState, JointTrajectory
+from activetouch.rigs.baxter_emulated import TwinEmulatedBaxterArm, start_emulated
 
 ROOT = Path(__file__).resolve().parents[3]
 BAXTER_TOML = ROOT / "deploy" / "baxter-twin.toml"
@@ -171,8 +171,8 @@ def test_recognition_on_the_driver_against_the_twin_backed_emulator(devices, sma
     is, robot seconds add up, and the result is the twin-baxter type's."""
     from activetouch.planning.motion.robot import hand_pose
     from activetouch.planning.policies import make_policy
-    from activetouch.service.messages import SimPlaceRequest
-    from activetouch.service.session import RecognitionSession
+    from activetouch.session.loop import RecognitionSession
+    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = devices.ctx.cfg
     arm = devices.arm
@@ -218,7 +218,7 @@ def test_a_contact_with_the_placed_object_is_unreachable_not_a_stop(devices) -> 
     from activetouch.interfaces import Pose
     from activetouch.planning.motion.ik import IKSolver
     from activetouch.planning.motion.robot import pose_to_se3
-    from activetouch.service.messages import SimPlaceRequest
+    from activetouch.transport.messages import SimPlaceRequest
 
     devices.ctx.place(SimPlaceRequest(object="cup", seed=0))  # the arm back at ready
     arm = devices.arm

@@ -4,12 +4,12 @@ import socket
 
 import pytest
 
-from activetouch.drivers.reflex.emulator_takktile import (
+from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
+from activetouch.emulators.reflex_takktile import (
     EmulatorConfig,
     KinematicFingers,
     TakktileEmulator,
 )
-from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 
 MOTOR_ZERO = [56.0, 57.0, 55.5, 53.0]
 ENCODER_ZERO = [1.0, 2.0, 0.5]

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from activetouch.cli.main import main
 from activetouch.config import load_config
 from activetouch.devices import make_devices
-from activetouch.service.cli import main
 from tests.calibration.board import NoisyBoard
 
 

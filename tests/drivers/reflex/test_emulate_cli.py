@@ -47,7 +47,7 @@ def driver_close(state_port: int, command_port: int) -> tuple[Grasp, tuple[str, 
 
 def test_emulator_process_serves_the_driver():
     sp, cp = free_udp_port(), free_udp_port()
-    argv = [sys.executable, "-m", "activetouch.drivers.reflex.emulate", "reflex-takktile"]
+    argv = [sys.executable, "-m", "activetouch.rigs.emulate", "reflex-takktile"]
     argv += ["--state-to", f"127.0.0.1:{sp}", "--command-listen", f"127.0.0.1:{cp}"]
     argv += ["--contact-spool", "0.5", "0.5", "0.5"]
     with emulator_process(argv, wait_s=5):

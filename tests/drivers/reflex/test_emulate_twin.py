@@ -30,15 +30,15 @@ def test_recognition_through_driver_agrees_with_twin(trained_home):
     resolution); then a whole recognition runs through it and names an object."""
     from activetouch import paths
     from activetouch.devices import make_devices
-    from activetouch.drivers.reflex.twin_emulated import TwinEmulatedHand
     from activetouch.interfaces import Pose
     from activetouch.model import load_model
+    from activetouch.objects.library import ObjectLibrary
     from activetouch.planning.policies import make_policy
-    from activetouch.service.messages import SimPlaceRequest
-    from activetouch.service.session import RecognitionSession
+    from activetouch.rigs.reflex_emulated import TwinEmulatedHand
+    from activetouch.session.loop import RecognitionSession
     from activetouch.sim.devices import twin_rig
-    from activetouch.sim.objects import ObjectLibrary
     from activetouch.sim.twin import open_twin
+    from activetouch.transport.messages import SimPlaceRequest
 
     obj, seed = "sphere", 1
     model = load_model(paths.default_model(trained_home))

@@ -10,7 +10,7 @@ import numpy as np
 
 from activetouch.drivers.reflex.common import ReflexHandState
 from activetouch.interfaces import HandState
-from activetouch.service.messages import (
+from activetouch.transport.messages import (
     HandStateMsg,
     decode,
     encode,

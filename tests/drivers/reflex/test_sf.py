@@ -14,10 +14,10 @@ from hypothesis import strategies as st
 
 from activetouch.devices import device_config
 from activetouch.drivers.reflex.common import StreamLostError
-from activetouch.drivers.reflex.emulator_sf import SFEmulator
-from activetouch.drivers.reflex.emulator_takktile import KinematicFingers
 from activetouch.drivers.reflex.kinematics import contact_sites
 from activetouch.drivers.reflex.sf import ReflexSFConfig, ReflexSFHand
+from activetouch.emulators.reflex_sf import SFEmulator
+from activetouch.emulators.reflex_takktile import KinematicFingers
 from activetouch.errors import ConfigError, StoppedError
 
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from activetouch.drivers.reflex.emulator_takktile import EmulatorConfig, TakktileEmulator
 from activetouch.drivers.reflex.takktile import ReflexTakktileHand
+from activetouch.emulators.reflex_takktile import EmulatorConfig, TakktileEmulator
 
 from .conftest import driver_config, free_udp_port
 
@@ -26,7 +26,7 @@ def _world():
 
 
 def test_driver_on_twin_backed_emulator_matches_twin():
-    from activetouch.drivers.reflex.twin_fingers import TwinFingers
+    from activetouch.rigs.twin_fingers import TwinFingers
     from activetouch.sim.hand import SimHand
 
     w_direct, w_emu = _world(), _world()

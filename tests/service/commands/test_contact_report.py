@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 import trimesh
 
+from activetouch.cli.main import main
 from activetouch.planning.grid import small_object_overrides
-from activetouch.service.cli import main
 
 
 def _sets(overrides: list[str]) -> list[str]:
@@ -18,7 +18,7 @@ def _sets(overrides: list[str]) -> list[str]:
 
 @pytest.fixture(scope="module")
 def builtins(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from activetouch.sim.objects import ObjectLibrary
+    from activetouch.objects.library import ObjectLibrary
 
     root = tmp_path_factory.mktemp("objects")
     ObjectLibrary(root).ensure_builtins()

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import json
 
-from activetouch.service.cli import main
+from activetouch.cli.main import main
 
 
 def test_demo_recognises_through_the_daemon_and_writes_the_report(trained_home, tmp_path, capsys):

@@ -13,9 +13,9 @@ import pytest
 import trimesh
 
 from activetouch import paths
+from activetouch.cli.main import main
 from activetouch.interfaces import Grasp, Pose
-from activetouch.service.cli import main
-from activetouch.sim.objects import BUILTIN_OBJECTS, ObjectLibrary
+from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +43,7 @@ def _list(data: Path, capsys: pytest.CaptureFixture[str]) -> list[dict]:
 
 def test_list_generates_builtins_on_first_use(first_list: tuple[Path, str]) -> None:
     rows = json.loads(first_list[1])
-    from activetouch.sim.library.hard import HARD_OBJECTS
+    from activetouch.objects.hard import HARD_OBJECTS
 
     assert [r["name"] for r in rows] == list(BUILTIN_OBJECTS + HARD_OBJECTS)
     assert ObjectLibrary(first_list[0]).names() == list(BUILTIN_OBJECTS + HARD_OBJECTS)

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import json
 
-from activetouch.service.cli import main
+from activetouch.cli.main import main
 
 
 def test_recognize_json_prints_one_object(trained_home, capsys):

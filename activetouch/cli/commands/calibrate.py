@@ -1,0 +1,351 @@
+"""`activetouch calibrate tactile|fingers|mount|object|show`: measure a calibration with the
+configured devices, store it per device (``<data>/calibration/<device>/<kind>.json``), make
+the running driver use it, or print what is stored."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+from rich.console import Console
+
+from activetouch import paths
+from activetouch.errors import ActiveTouchError
+
+PROCEDURES = ("tactile", "fingers", "mount", "object")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from activetouch.cli.main import add_common_options
+
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate tactile zero, finger zero, hand mount, object placement; show them",
+        description="Measure a calibration with the configured hand/arm and store it, or show "
+        "the stored ones. docs/calibration.md says what each procedure does.",
+    )
+    p.add_argument("what", choices=(*PROCEDURES, "show"))
+    p.add_argument("kind", nargs="?", choices=PROCEDURES, help="show: only this kind")
+    p.add_argument("--device", default=None, help="device name (default: the hand type)")
+    p.add_argument("--json", action="store_true", help="print the record as JSON")
+    p.add_argument("--dry-run", action="store_true", help="measure and print, store nothing")
+    p.add_argument("--duration", type=float, default=None, help="tactile: seconds of samples")
+    p.add_argument("--k-sigma", type=float, default=None, help="tactile: threshold = k sigma")
+    p.add_argument("--min-threshold", type=float, default=None, help="tactile: lowest threshold")
+    p.add_argument("--no-open", action="store_true", help="tactile: do not open the hand first")
+    p.add_argument(
+        "--inject-mount",
+        default=None,
+        metavar="X,Y,Z,RX,RY,RZ",
+        help="mount, twin only: hang the hand off the flange through this true mount "
+        "(mm, deg) to check the procedure",
+    )
+    p.add_argument("--object", default=None, help="object: its name in the object library")
+    p.add_argument(
+        "--inject-object",
+        default=None,
+        metavar="DX,DY[,DEG]",
+        help="object, twin only: stand the object this far off the workcell's placement (mm, "
+        "deg about z) while the procedure believes the nominal one",
+    )
+    p.add_argument("--directions", type=int, default=None, help="object: approaches (8)")
+    add_common_options(p)
+    p.set_defaults(func=run)
+
+
+def device_name(cfg, explicit: str | None) -> str:
+    if explicit:
+        return explicit
+    hand = cfg.hand
+    for attr in ("serial", "name"):
+        v = getattr(hand, attr, "")
+        if v:
+            return str(v)
+    return str(hand.type or "hand")
+
+
+def run(args: argparse.Namespace) -> int:
+    from activetouch.calibration import store
+    from activetouch.config import load_config
+
+    console = Console(soft_wrap=True)
+    root = paths.data_dir(args.data)
+    if args.what == "show":
+        return show(root, args.kind, args.json, console)
+    cfg = load_config(args.config, args.overrides)
+    device = device_name(cfg, args.device)
+    if args.what == "tactile":
+        rec = run_tactile(cfg, root, device, args, console)
+    elif args.what == "fingers":
+        rec = run_fingers(cfg, root, device, args, console)
+    elif args.what == "mount":
+        rec = run_mount(cfg, root, device, args, console)
+    else:
+        rec = run_object(cfg, root, args.device, args, console)
+    if args.json:
+        print(rec.to_json(), end="")
+    if not args.dry_run:
+        path = store.save(root, rec)
+        console.print(f"stored {path}")
+    return 0
+
+
+def _hand(cfg, root):
+    from activetouch.devices import DeviceContext
+
+    ctx = DeviceContext(cfg, root)
+    hand = cfg.hand.make(ctx)
+    hand.connect()
+    return hand, ctx
+
+
+def run_tactile(cfg, root, device, args, console):
+    from activetouch.calibration import store
+    from activetouch.calibration.tactile import TactileSettings, apply_tactile, calibrate_tactile
+
+    st = TactileSettings(open_first=not args.no_open)
+    if args.duration is not None:
+        st.duration_s = args.duration
+    if args.k_sigma is not None:
+        st.k_sigma = args.k_sigma
+    if args.min_threshold is not None:
+        st.min_threshold = args.min_threshold
+    previous = store.load(root, "tactile", device)
+    hand, ctx = _hand(cfg, root)
+    try:
+        rec, fit = calibrate_tactile(hand, device, st, previous)
+        apply_tactile(hand, fit.zero, fit.threshold)
+    finally:
+        hand.disconnect()
+        ctx.close()
+    q = rec.quality
+    console.print(
+        f"tactile {device}: {q['n_samples']} samples in {q['window_s']:.2f} s; sigma median "
+        f"{q['sigma_median']:.2f}, max {q['sigma_max']:.2f} counts; zero standard error <= "
+        f"{q['zero_standard_error_max']:.2f}; flags {rec.values['flags']}"
+    )
+    return rec
+
+
+def run_fingers(cfg, root, device, args, console):
+    from activetouch.calibration.fingers import calibrate_fingers
+
+    hand, ctx = _hand(cfg, root)
+    try:
+        rec, fit = calibrate_fingers(hand, device)
+    finally:
+        hand.disconnect()
+        ctx.close()
+    console.print(
+        f"fingers {device}: motor zero {np.round(fit.motor_zero, 4).tolist()} rad (correction "
+        f"{rec.quality['correction_motor_rad']}), encoder zero "
+        f"{np.round(fit.encoder_zero, 4).tolist()} rad, in {fit.duration_s:.1f} s"
+    )
+    return rec
+
+
+def _parse_mount(text: str):
+    from scipy.spatial.transform import Rotation
+
+    from activetouch.interfaces import Pose
+
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6:
+        raise ActiveTouchError(f"--inject-mount {text!r}: expected X,Y,Z,RX,RY,RZ (mm, deg)")
+    return Pose(np.array(v[:3]) / 1000.0, Rotation.from_euler("xyz", v[3:], degrees=True).as_quat())
+
+
+def run_mount(cfg, root, device, args, console):
+    from activetouch.calibration import store
+    from activetouch.calibration.mount import calibrate_mount
+    from activetouch.calibration.probing import FloatingFlange
+    from activetouch.devices import make_devices
+    from activetouch.interfaces import Pose
+
+    mount_device = f"{device}-on-{cfg.arm.type}"
+    previous = store.load(root, "mount", mount_device)
+    mount0 = (
+        Pose(previous.values["xyz"], previous.values["quat_xyzw"])
+        if previous is not None
+        else Pose(np.zeros(3), [0.0, 0.0, 0.0, 1.0])
+    )
+    devices = make_devices(cfg, root)
+    try:
+        arm = devices.arm
+        if args.inject_mount:
+            if not devices.simulated:
+                raise ActiveTouchError("--inject-mount is for the twin only")
+            from activetouch.calibration.sim import MountedArm
+
+            arm = MountedArm(arm, _parse_mount(args.inject_mount))
+        threshold = float(getattr(cfg.sim, "contact_threshold", 20.0))
+        rec, fit, _ = calibrate_mount(
+            devices.hand,
+            FloatingFlange(arm),
+            mount0,
+            cfg.workcell.table_top_z,
+            mount_device,
+            threshold=threshold,
+        )
+    finally:
+        devices.close()
+    q = rec.quality
+    console.print(
+        f"mount {mount_device}: xyz {np.round(fit.mount.xyz * 1e3, 2).tolist()} mm, rotation "
+        f"{np.round(np.degrees(_rotvec(fit.mount.quat)), 3).tolist()} deg (rotation vector); "
+        f"{q['n_touches']} touches, RMS residual {q['rms_residual_mm']:.3f} mm"
+    )
+    return rec
+
+
+def _parse_object_error(text: str):
+    from activetouch.sim.twin import PlacementError
+
+    try:
+        v = [float(x) for x in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) not in (2, 3) or not np.all(np.isfinite(v)):
+        raise ActiveTouchError(f"--inject-object {text!r}: expected DX,DY[,DEG] (mm, deg)")
+    return PlacementError(
+        v[0] / 1000.0, v[1] / 1000.0, float(np.radians(v[2] if len(v) > 2 else 0))
+    )
+
+
+def run_object(cfg, root, device, args, console):
+    from activetouch.calibration import store
+    from activetouch.calibration.object_frame import (
+        DEFAULT_DEVICE,
+        IDENTITY,
+        ObjectSettings,
+        calibrate_object,
+        nominal_placement,
+    )
+    from activetouch.calibration.probing import FloatingFlange
+    from activetouch.devices import make_devices
+    from activetouch.interfaces import Pose
+    from activetouch.objects.library import ObjectLibrary
+
+    if not args.object:
+        raise ActiveTouchError("calibrate object: name the object with --object NAME")
+    device = device or DEFAULT_DEVICE
+    library = ObjectLibrary.in_data_dir(root)
+    if args.object not in library and args.object in _builtins():
+        library.ensure_builtins([args.object])
+    spec = library.get(args.object)  # DataError names the known ones
+    st = ObjectSettings()
+    if args.directions is not None:
+        st.directions = int(args.directions)
+    nominal = nominal_placement(cfg.workcell, spec.extents)
+    injected = _parse_object_error(args.inject_object) if args.inject_object else None
+    devices = make_devices(cfg, root)
+    try:
+        mount = IDENTITY
+        if devices.simulated:
+            if devices.ctx.place is None:
+                raise ActiveTouchError("calibrate object: this simulated robot places no object")
+            from activetouch.transport.messages import SimPlaceRequest
+
+            devices.ctx.place(SimPlaceRequest(object=spec.name, seed=cfg.sim.seed))
+            if injected is not None:
+                _misplace(devices, spec, injected)
+        else:
+            if injected is not None:
+                raise ActiveTouchError("--inject-object is for the twin only")
+            hand_name = device_name(cfg, None)
+            rec_m = store.load(root, "mount", f"{hand_name}-on-{cfg.arm.type}")
+            if rec_m is not None:
+                mount = Pose(rec_m.values["xyz"], rec_m.values["quat_xyzw"])
+        from activetouch.sim.world import geometry_from_config
+
+        rec, fit, _ = calibrate_object(
+            devices.hand,
+            FloatingFlange(devices.arm),
+            spec,
+            nominal,
+            cfg.workcell.table_top_z,
+            device,
+            st,
+            mount=mount,
+            geometry=geometry_from_config(cfg.sim),
+            threshold=float(cfg.sim.contact_threshold),
+        )
+    finally:
+        devices.close()
+    q = rec.quality
+    p = fit.placement
+    yaw = f"{np.degrees(p.yaw_rad):.2f} deg" if fit.yaw_observed else "not seen (kept nominal)"
+    console.print(
+        f"object {spec.name}: x {p.xyz[0] * 1e3:.2f} y {p.xyz[1] * 1e3:.2f} z {p.xyz[2] * 1e3:.2f}"
+        f" mm, yaw {yaw}; correction {np.round(fit.correction_xy * 1e3, 2).tolist()} mm; "
+        f"{q['n_touches']} touches ({len(q['missed_approaches'])} missed), RMS residual "
+        f"{q['rms_residual_mm']:.3f} mm, contact offset {fit.offset_m * 1e3:.2f} mm",
+        highlight=False,
+    )
+    if injected is not None:
+        ex = fit.correction_xy[0] - injected.dx
+        ey = fit.correction_xy[1] - injected.dy
+        console.print(
+            f"  injected ({injected.dx * 1e3:.2f}, {injected.dy * 1e3:.2f}) mm, "
+            f"{np.degrees(injected.yaw_rad):.2f} deg: error ({ex * 1e3:.2f}, {ey * 1e3:.2f}) mm, "
+            f"|{np.hypot(ex, ey) * 1e3:.2f}| mm",
+            highlight=False,
+        )
+    return rec
+
+
+def _builtins() -> tuple[str, ...]:
+    from activetouch.objects.library import BUILTIN_OBJECTS
+
+    return BUILTIN_OBJECTS
+
+
+def _misplace(devices, spec, err) -> None:
+    """Stand the twin's object off its placement (the object frame stays nominal)."""
+    from activetouch.sim.devices import TWIN
+    from activetouch.sim.twin import place_displaced
+
+    rig = devices.ctx.shared(TWIN, lambda: None)
+    if rig is None or not hasattr(rig, "world"):
+        raise ActiveTouchError(
+            "--inject-object needs the twin (hand.type=twin, arm.type=twin-floating)"
+        )
+    place_displaced(rig.world, spec, err)
+
+
+def _rotvec(quat):
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_quat(quat).as_rotvec()
+
+
+def show(root, kind: str | None, as_json: bool, console: Console) -> int:
+    from activetouch.calibration import store
+
+    rows = [(p, r) for p, r in store.list_records(root) if kind is None or p.stem == kind]
+    if as_json:
+        out = [
+            {"path": str(p), "error": str(r)}
+            if isinstance(r, Exception)
+            else {"path": str(p), **json.loads(r.to_json())}
+            for p, r in rows
+        ]
+        print(json.dumps(out, indent=2))
+        return 0
+    if not rows:
+        console.print(f"no calibration stored under {store.calibration_dir(root)}")
+        return 0
+    for p, r in rows:
+        if isinstance(r, Exception):
+            console.print(f"{p}: [red]unreadable[/]: {r}", highlight=False)
+            continue
+        stale = store.staleness(r, r.kind)
+        note = f" [yellow]({stale})[/]" if stale else ""
+        console.print(f"{r.kind} {r.device}: measured {r.measured_at}{note}", highlight=False)
+        console.print(f"  {p}", highlight=False)
+        console.print(f"  quality: {json.dumps(r.quality)}", highlight=False)
+    return 0

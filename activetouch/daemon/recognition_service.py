@@ -1,0 +1,1032 @@
+"""The recognition service: admission, one recognition at a time (with an optional queue),
+cancel, status and the emergency stop, on the daemon's Zenoh keys (docs/api.md).
+
+In the daemon it reaches the hand and the arm *only* through Zenoh (`RemoteHand`,
+`RemoteArm`), whether the nodes live in the same process or another one; everything it uses
+(devices, progress publication, requesters' tokens) comes in `ServiceLinks`, so tests run it
+in memory on the devices themselves (`local_links`) with queries handed to `submit`.
+
+Threads: Zenoh callbacks only enqueue queries. A control thread answers ``status`` and
+``cancel`` and admits ``recognize`` requests (validation, busy check); a runner thread runs one
+recognition at a time and holds its query until the final reply; an e-stop thread answers
+``estop`` (it must not wait behind anything).
+
+One recognition at a time: while one runs, a new request is refused with a `BusyError`
+reply, unless ``service.max_queued`` > 0, in which case up to that many wait in a FIFO queue
+(a waiting request whose caller's ``timeout`` has passed is dropped with an error).
+
+Emergency stop: trips the interlock of the running recognition (every further hand/arm
+command of it is refused, so it ends at once with a `RecognitionAbortedError` reply), drops
+the queued requests, stops the arm and the hand (``arm/stop``, ``hand/stop``: served beside a
+running motion or grasp, so both halt within a control step) and opens the hand. The devices
+stay stopped until the next recognition starts, which clears the stop: a new request is the
+operator's explicit go-ahead.
+
+Where the object is: on a simulated robot the ``sim/place`` node puts it on the table (standing
+on the workcell's table at its object x, y); on a real one the workcell configures it. Either
+way the table plane in the object frame comes from the workcell, and contacts on it are
+dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import queue
+import secrets
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import zenoh
+
+from activetouch.config import Config
+from activetouch.daemon.client import BusyError, RecognitionAbortedError
+from activetouch.daemon.nodes import (
+    JSON,
+    TIMEOUT_PARAM,
+    AliveNodes,
+    RemoteArm,
+    RemoteHand,
+    RemotePlace,
+    _Coalesced,
+    _direct,
+    tokens_left,
+)
+from activetouch.errors import (
+    ActiveTouchError,
+    DataError,
+    MessageError,
+    NodeUnavailableError,
+)
+from activetouch.interfaces import Grasp, Hand, HandWrapper, Pose
+from activetouch.planning.motion.base import WristMotion, workcell_placement
+from activetouch.planning.policies import Plan, PlanningState, Policy, make_policy
+from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
+from activetouch.transport.messages import (
+    CancelRequest,
+    CancelResult,
+    Empty,
+    EStopRequest,
+    EStopResult,
+    Message,
+    NodeHealth,
+    PoseMsg,
+    Progress,
+    RecognizeRequest,
+    RecognizeResult,
+    Reply,
+    SessionSummary,
+    Status,
+    decode,
+    encode,
+)
+from activetouch.transport.zenoh_session import undeclare_quietly
+
+log = logging.getLogger("activetouch.daemon")
+
+_STOP = object()
+EXPIRY_SWEEP_S = 0.5  # how often the control thread drops queued requests past their timeout
+REQUESTER_CHECK_S = 0.5  # at the start of a recognition: does its requester hold a token?
+
+
+class _Interlock:
+    """Refuses every further hand/arm command of one recognition once tripped."""
+
+    def __init__(self) -> None:
+        self.reason: str | None = None
+
+    def trip(self, reason: str) -> None:
+        if self.reason is None:
+            self.reason = reason
+
+    def check(self, what: str) -> None:
+        if self.reason is not None:
+            raise RecognitionAbortedError(f"{what} refused: {self.reason}")
+
+
+class _GuardedHand(HandWrapper):
+    """The hand as one recognition uses it: motions refused once its interlock trips. It
+    neither connects nor disconnects the hand (the service does not own it)."""
+
+    def __init__(self, hand: Hand, interlock: _Interlock) -> None:
+        super().__init__(hand)
+        self.interlock = interlock
+
+    def connect(self) -> None:
+        pass
+
+    def disconnect(self) -> None:
+        pass
+
+    def open(self) -> None:
+        self.interlock.check("hand open")
+        self.inner.open()
+
+    def preshape(self, angle: float) -> None:
+        self.interlock.check("hand preshape")
+        self.inner.preshape(angle)
+
+    def guarded_close(self) -> Grasp:
+        self.interlock.check("grasp")
+        return self.inner.guarded_close()
+
+
+class _GuardedWrist(WristMotion):
+    def __init__(self, wrist: WristMotion, interlock: _Interlock) -> None:
+        self.inner, self.interlock = wrist, interlock
+
+    def move_to(self, pose: Pose) -> None:
+        self.interlock.check("arm motion")
+        self.inner.move_to(pose)
+
+    # Robot time of the wrapped wrist (a read: allowed after a trip too).
+    @property  # type: ignore[override]
+    def robot_seconds(self) -> float:
+        return self.inner.robot_seconds
+
+    @property  # type: ignore[override]
+    def planning_seconds(self) -> float:
+        return self.inner.planning_seconds
+
+
+class _TimedPolicy(Policy):
+    """A policy that keeps the planning time since it was last asked (per-move figures), ends
+    a plan that runs past `budget_s` with the best path it has, and can be interrupted for
+    good (cancel, e-stop, shutdown) from another thread."""
+
+    def __init__(self, inner: Policy, budget_s: float | None = None) -> None:
+        self.inner = inner
+        self.name = inner.name
+        self.budget_s = budget_s
+        self._pending = 0.0
+        self._ended = False  # interrupted for good: no plan runs any more
+        self._lock = threading.Lock()
+
+    def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
+        t = time.perf_counter()
+        timer = None
+        if self.budget_s:
+            timer = threading.Timer(self.budget_s, self._over_budget)
+            timer.daemon = True
+            timer.start()
+        try:
+            return self.inner.plan(state, rng)
+        finally:
+            if timer is not None:
+                timer.cancel()
+            with self._lock:
+                if not self._ended:
+                    self.inner.clear_interrupt()  # the budget applies to one plan
+            self._pending += time.perf_counter() - t
+
+    def _over_budget(self) -> None:
+        log.info("plan over its time budget: taking its best path so far")
+        self.inner.interrupt()
+
+    def interrupt(self) -> None:
+        with self._lock:
+            self._ended = True
+            self.inner.interrupt()
+
+    def take(self) -> float:
+        v, self._pending = self._pending, 0.0
+        return v
+
+
+@dataclass
+class _Job:
+    query: zenoh.Query
+    request: RecognizeRequest
+    session_id: str
+    seed: int
+    arrived: float  # monotonic
+    budget: float | None  # the caller's timeout, from the selector
+
+
+@dataclass
+class _Running:
+    job: _Job
+    cancel: threading.Event
+    interlock: _Interlock
+    started: float  # wall clock
+    move: int = 0
+    policy: Policy | None = None  # interrupted by cancel / e-stop / shutdown
+    place_s: float = 0.0  # for the log
+    session_s: float = 0.0
+
+
+def _probability(p: float) -> float:
+    return min(1.0, max(0.0, float(p)))
+
+
+def _parse(query: zenoh.Query, request_type: type[Message]) -> Any:
+    payload = query.payload
+    data = payload.to_bytes() if payload is not None else b""
+    if not data and request_type in (Empty, CancelRequest, EStopRequest):
+        return request_type()
+    return decode(data, request_type)
+
+
+def _budget(query: zenoh.Query) -> float | None:
+    try:
+        raw = query.parameters.get(TIMEOUT_PARAM)
+        return float(raw) if raw else None
+    except (TypeError, ValueError):
+        return None
+
+
+# Local paths in texts sent to clients, replaced by placeholders (the log keeps them): a
+# client has no business knowing the robot PC's directories (issue 16, finding 10).
+_REDACT: list[tuple[str, str]] = []
+
+
+def set_redactions(data: Path | None) -> None:
+    """Hide `data` (as "<data>") and the home directory (as "~") in replies."""
+    pairs = []
+    if data is not None:
+        pairs.append((str(Path(data).resolve()), "<data>"))
+        pairs.append((str(data), "<data>"))
+    home = str(Path.home())
+    if home not in ("/", ""):
+        pairs.append((home, "~"))
+    _REDACT[:] = sorted(set(pairs), key=lambda p: -len(p[0]))  # longest first
+
+
+def redact(text: str | None) -> str | None:
+    if not text:
+        return text
+    for path, mark in _REDACT:
+        text = text.replace(path, mark)
+    return text
+
+
+def _reply_error(query: zenoh.Query, exc: BaseException) -> None:
+    try:
+        env = Reply.failure(exc)
+        env = msgspec.structs.replace(env, error=redact(env.error) or "")
+        query.reply_err(encode(env), encoding=JSON)
+    except Exception:
+        log.debug("cannot send an error reply", exc_info=True)
+
+
+@dataclass
+class ServiceLinks:
+    """What the service reaches the robot and its clients through. Over Zenoh (`zenoh_links`)
+    in the daemon; in memory (`local_links`) in tests, so the admission, queue, cancel and
+    e-stop logic runs without Zenoh or subprocesses."""
+
+    hand: Hand
+    arm: Any  # WristMotion (move_to) with stop, clear_stop, estop
+    place: Any = None  # (object, seed) -> SimPlaceResult; None: a real robot
+    alive: Any = None  # snapshot() / since(node): the nodes' liveliness; None: always alive
+    publish: Any = None  # bytes -> None: a progress sample
+    # (session_id, on_gone) -> handle to undeclare, or None: the requester holds no token
+    watch_requester: Any = None
+    closers: list = field(default_factory=list)
+
+
+def zenoh_links(session: zenoh.Session, robot: str, mode: str, svc: Any) -> ServiceLinks:
+    """The devices through their Zenoh nodes, progress on `progress`, requesters' tokens."""
+    keys = Keys(robot)
+    timeouts = {"timeout": svc.node_timeout_s, "motion_timeout": svc.motion_timeout_s}
+    alive = AliveNodes(session, robot)
+    hand = RemoteHand(session, robot, **timeouts)
+    arm = RemoteArm(session, robot, **timeouts)
+    sim = RemotePlace(session, robot, svc.motion_timeout_s) if mode == "sim" else None
+    publisher = session.declare_publisher(keys.progress, encoding=JSON)
+
+    def watch(sid: str, on_gone: Any) -> Any:
+        try:
+            key = keys.requester(sid)
+        except ActiveTouchError:
+            return None  # an id that is no key chunk cannot have a token
+        if not tokens_left(session, key, timeout=REQUESTER_CHECK_S):
+            return None
+
+        def confirm() -> None:
+            if not tokens_left(session, key):
+                on_gone()
+
+        check = _Coalesced(confirm, "activetouch-requester")
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                check.request()  # confirm off Zenoh's thread: a spoofed drop changes nothing
+
+        return session.liveliness().declare_subscriber(key, _direct(on_sample))
+
+    return ServiceLinks(
+        hand=hand,
+        arm=arm,
+        place=sim.place if sim is not None else None,
+        alive=alive,
+        publish=publisher.put,
+        watch_requester=watch,
+        closers=[
+            alive.close,
+            hand.close,
+            arm.close,
+            *([sim.close] if sim else []),
+            lambda: undeclare_quietly(publisher),
+        ],
+    )
+
+
+class _LocalArm(WristMotion):
+    """A device's wrist motion plus its arm's stops, as the service uses them."""
+
+    def __init__(self, devices: Any) -> None:
+        self.devices = devices
+
+    def move_to(self, pose: Pose) -> None:
+        self.devices.wrist.set_placement(self.devices.placement())
+        self.devices.wrist.move_to(pose)
+
+    @property  # type: ignore[override]
+    def robot_seconds(self) -> float:
+        return self.devices.wrist.robot_seconds
+
+    @property  # type: ignore[override]
+    def planning_seconds(self) -> float:
+        return self.devices.wrist.planning_seconds
+
+    def stop(self) -> None:
+        self.devices.arm.stop()
+
+    def estop(self) -> None:
+        self.devices.arm.estop()
+
+    def clear_stop(self) -> None:
+        self.devices.arm.clear_stop()
+
+
+def local_links(devices: Any) -> ServiceLinks:
+    """The devices of `make_devices` called directly (no Zenoh): for tests and tools."""
+    place = None
+    if devices.simulated and devices.ctx.place is not None:
+
+        def place(obj: str, seed: int | None) -> Any:
+            from activetouch.transport.messages import SimPlaceRequest
+
+            return devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
+
+    return ServiceLinks(hand=devices.hand, arm=_LocalArm(devices), place=place)
+
+
+class RecognitionService:
+    """Serves ``recognize``, ``cancel``, ``status``, ``estop``; publishes ``progress``.
+
+    Over Zenoh, `start` declares the daemon's queryables on `session`; without a session
+    (tests), hand queries to `submit` — any object with ``payload``, ``parameters``,
+    ``reply``, ``reply_err`` and ``with`` support does."""
+
+    def __init__(
+        self,
+        session: zenoh.Session | None,
+        robot: str,
+        mode: str,
+        cfg: Config,
+        model_dir: Path,
+        data: Path | None = None,
+        links: ServiceLinks | None = None,
+    ) -> None:
+        from activetouch.session.local import load_trained
+
+        set_redactions(data)
+        self.keys = Keys(robot)
+        self.robot, self.mode, self.cfg = robot, mode, cfg
+        self.svc = cfg.service
+        self._session = session
+        self._t0 = time.monotonic()
+        self.model: Any = None
+        self._kernel: Any = None
+        self.model_desc: str | None = None
+        self.model_error: str | None = None
+        try:
+            self.model = load_trained(model_dir)
+            self._kernel = self.model.classifier.kernel()
+            self.model_desc = (
+                f"{model_dir.resolve()} ({', '.join(self.model.class_names)}; "
+                f"dataset {self.model.dataset_checksum[:12]})"
+            )
+            log.info(
+                "model loaded", extra={"model": str(model_dir), "classes": self.model.n_classes}
+            )
+            self._warm_up()
+        except ActiveTouchError as e:
+            self.model_error = str(e)
+            log.warning("no model", extra={"model": str(model_dir), "error": str(e)})
+        self._cv = threading.Condition()
+        self._pending: deque[_Job] = deque()
+        self._running: _Running | None = None
+        self._closing = False
+        self._control_q: queue.SimpleQueue = queue.SimpleQueue()
+        self._estop_q: queue.SimpleQueue = queue.SimpleQueue()
+        self._queryables: list[Any] = []
+        self._token: Any = None
+        if links is None:
+            if session is None:
+                raise ValueError("a RecognitionService needs a Zenoh session or its links")
+            links = zenoh_links(session, robot, mode, self.svc)
+        self.links = links
+        self.hand, self.arm = links.hand, links.arm
+        self._threads = [
+            threading.Thread(target=self._control_loop, name="activetouch-control", daemon=True),
+            threading.Thread(target=self._runner_loop, name="activetouch-runner", daemon=True),
+            threading.Thread(target=self._estop_loop, name="activetouch-estop", daemon=True),
+        ]
+
+    def _warm_up(self) -> None:
+        """Plan once now, so the first request does not wait for numba to load (or compile)
+        the tree search, nor for the grasp-likelihood table (cached on the model)."""
+        from activetouch.session.loop import belief_table_of
+
+        t = time.perf_counter()
+        try:
+            belief = belief_table_of(self.model, self.cfg.recognition)
+            policy = make_policy(
+                "tree",
+                dataclasses.replace(self.cfg.planner, horizon=1, simulations=2),
+                self.model.observation,
+                self._kernel,
+                belief,
+            )
+            state = PlanningState(
+                pose=0,
+                visited=np.array([0], dtype=np.int64),
+                counts=np.zeros(self.model.spec.n_bins),
+                cells=np.zeros(0, dtype=np.int64),
+                log_belief=None if belief is None else np.zeros(self.model.n_classes),
+            )
+            policy.plan(state, np.random.default_rng(0))
+        except Exception as e:  # best effort: the first request then pays instead
+            log.debug("planner warm-up failed", extra={"error": str(e)})
+            return
+        log.info("planner warmed up", extra={"s": round(time.perf_counter() - t, 3)})
+
+    @property
+    def node_names(self) -> tuple[str, ...]:
+        return (HAND_NODE, ARM_NODE, SIM_NODE) if self.mode == "sim" else (HAND_NODE, ARM_NODE)
+
+    def start(self, wait_nodes: float) -> None:
+        """Serve; wait up to `wait_nodes` s for the nodes; then declare the daemon's token."""
+        try:
+            k = self.keys
+            for t in self._threads:
+                t.start()
+            if self._session is None:
+                return  # in memory: queries come through `submit`
+            for key in (k.recognize, k.cancel, k.status, k.estop):
+                self._queryables.append(
+                    self._session.declare_queryable(key, _direct(self._enqueuer(key)))
+                )
+            deadline = time.monotonic() + wait_nodes
+            for node in (self.hand, self.arm):
+                wait = getattr(node, "wait_alive", None)
+                if wait is None:
+                    continue
+                try:
+                    wait(max(0.0, deadline - time.monotonic()))
+                except NodeUnavailableError as e:
+                    log.warning("node not there yet", extra={"node": node.node, "error": str(e)})
+            # Last: a client that sees the token can use every queryable.
+            self._token = self._session.liveliness().declare_token(k.alive(DAEMON_NODE))
+        except Exception:
+            self.close()
+            raise
+        log.info(
+            "recognition service ready",
+            extra={"robot": self.robot, "mode": self.mode, "model": self.model is not None},
+        )
+
+    def healthy(self) -> bool:
+        return all(t.is_alive() for t in self._threads)
+
+    def submit(self, key: str, query: Any) -> None:
+        """Take a query on one of the daemon's keys (the e-stop on its own thread)."""
+        target = self._estop_q if key == self.keys.estop else self._control_q
+        target.put((key, query, time.monotonic()))
+
+    def _enqueuer(self, key: str) -> Any:
+        def on_query(query: zenoh.Query) -> None:
+            # Zenoh's thread: hand the query over, never block or call Zenoh here.
+            self.submit(key, query)
+
+        return on_query
+
+    # -- control thread: status, cancel, admission of recognize
+    def _control_loop(self) -> None:
+        while True:
+            try:
+                item = self._control_q.get(timeout=EXPIRY_SWEEP_S)
+            except queue.Empty:
+                self._expire_queued()
+                continue
+            if item is _STOP:
+                return
+            key, query, arrived = item
+            try:
+                if key == self.keys.recognize:
+                    self._admit(query, arrived)
+                elif key == self.keys.status:
+                    self._answer(query, key, Empty, lambda _req: self.status())
+                elif key == self.keys.cancel:
+                    self._answer(query, key, CancelRequest, self._cancel)
+            except Exception:
+                log.exception("control thread: handling a query failed", extra={"key": key})
+
+    def _expire_queued(self) -> None:
+        """Answer queued requests whose caller's timeout has passed now, not when they reach
+        the front (their caller has given up; the error says why)."""
+        now = time.monotonic()
+        with self._cv:
+            expired = [
+                j for j in self._pending if j.budget is not None and now - j.arrived > j.budget
+            ]
+            for job in expired:
+                self._pending.remove(job)
+        for job in expired:
+            log.info("queued recognition expired", extra={"session": job.session_id})
+            with job.query as q:
+                _reply_error(
+                    q,
+                    NodeUnavailableError(
+                        f"recognition {job.session_id} waited {now - job.arrived:.1f} s in the "
+                        f"queue, longer than its caller's timeout ({job.budget:g} s); not started"
+                    ),
+                )
+
+    def _answer(self, query: zenoh.Query, key: str, request_type: type[Message], fn: Any) -> None:
+        with query:
+            try:
+                result = fn(_parse(query, request_type))
+                query.reply(key, encode(Reply.success(result)), encoding=JSON)
+            except Exception as e:
+                if not isinstance(e, ActiveTouchError | ValueError):
+                    log.exception("query failed", extra={"key": key})
+                _reply_error(query, e)
+
+    def _check_request(self, req: RecognizeRequest) -> None:
+        if self.model is None:
+            raise DataError(f"no model: run `activetouch train` ({self.model_error})")
+        if self.mode == "sim" and req.object is None:
+            raise MessageError(
+                "invalid RecognizeRequest: field `object`: the twin needs the object to place "
+                "(this daemon runs in simulation)",
+                field="object",
+            )
+        if self.mode == "hardware" and req.object is not None:
+            raise MessageError(
+                "invalid RecognizeRequest: field `object`: this daemon drives a real robot and "
+                "cannot place objects; leave it null",
+                field="object",
+            )
+
+    def _busy_text(self) -> str:
+        cur = self._running
+        queued = len(self._pending)
+        if cur is not None:
+            r = cur.job.request
+            what = (
+                f"recognition {cur.job.session_id} ({r.object or 'object on the table'}, "
+                f"{r.policy}, grasp {cur.move}/{r.max_moves}) is running"
+            )
+        else:
+            what = "a recognition is starting"
+        if self.svc.max_queued:
+            what += f" and {queued} are queued (service.max_queued = {self.svc.max_queued})"
+        return (
+            f"busy: {what}; the daemon runs one recognition at a time — try again when it "
+            "finishes, or cancel it (`activetouch cancel`)"
+        )
+
+    def _admit(self, query: zenoh.Query, arrived: float) -> None:
+        try:
+            req = _parse(query, RecognizeRequest)
+            self._check_request(req)
+            sid = req.session_id or secrets.token_hex(6)
+            seed = req.seed if req.seed is not None else secrets.randbelow(2**31)
+            with self._cv:
+                if self._closing:
+                    raise NodeUnavailableError("the recognition daemon is shutting down")
+                ids = {j.session_id for j in self._pending}
+                if self._running is not None:
+                    ids.add(self._running.job.session_id)
+                if sid in ids:
+                    raise MessageError(
+                        f"invalid RecognizeRequest: field `session_id`: {sid!r} is in use",
+                        field="session_id",
+                    )
+                busy = self._running is not None or bool(self._pending)
+                if busy and len(self._pending) >= self.svc.max_queued:
+                    raise BusyError(self._busy_text())
+                job = _Job(query, req, sid, seed, arrived, _budget(query))
+                self._pending.append(job)
+                self._cv.notify_all()
+        except Exception as e:
+            log.info(
+                "recognize refused",
+                extra={"error_type": type(e).__name__, "error": str(e)},
+            )
+            with query:
+                _reply_error(query, e)
+            return
+        log.info(
+            "recognize accepted",
+            extra={
+                "session": sid,
+                "object": req.object,
+                "policy": req.policy,
+                "max_moves": req.max_moves,
+                "seed": seed,
+                "queued": len(self._pending) - (0 if busy else 1),
+            },
+        )
+
+    def _cancel(self, req: CancelRequest) -> CancelResult:
+        dropped: _Job | None = None
+        with self._cv:
+            cur = self._running
+            if cur is not None and req.session_id in (None, cur.job.session_id):
+                cur.cancel.set()
+                if cur.policy is not None:
+                    cur.policy.interrupt()
+                sid = cur.job.session_id
+            else:
+                for job in self._pending:
+                    if req.session_id in (None, job.session_id):
+                        dropped = job
+                        break
+                if dropped is None:
+                    return CancelResult(cancelled=False, session_id=req.session_id)
+                self._pending.remove(dropped)
+                sid = dropped.session_id
+        if dropped is not None:
+            with dropped.query as q:
+                _reply_error(
+                    q, RecognitionAbortedError(f"recognition {sid} cancelled before it started")
+                )
+        log.info("cancel", extra={"session": sid, "queued": dropped is not None})
+        return CancelResult(cancelled=True, session_id=sid)
+
+    def status(self) -> Status:
+        alive = self.links.alive
+        seen = alive.snapshot() if alive is not None else dict.fromkeys(self.node_names, True)
+        nodes: dict[str, NodeHealth] = {DAEMON_NODE: NodeHealth(alive=True, detail="serving")}
+        for name in self.node_names:
+            since = (alive.since(name) if alive is not None else None) or 0.0
+            if name not in seen:
+                nodes[name] = NodeHealth(alive=False, detail="never seen")
+            elif seen[name]:
+                nodes[name] = NodeHealth(alive=True, detail=f"up for {since:.1f} s")
+            else:
+                nodes[name] = NodeHealth(alive=False, detail=f"gone for {since:.1f} s")
+        with self._cv:
+            cur = self._running
+            queued = len(self._pending)
+        summary = None
+        if cur is not None:
+            r = cur.job.request
+            summary = SessionSummary(
+                session_id=cur.job.session_id,
+                policy=r.policy,
+                max_moves=r.max_moves,
+                move=cur.move,
+                object=r.object,
+                started=cur.started,
+            )
+        return Status(
+            robot=self.robot,
+            nodes=nodes,
+            model_loaded=self.model is not None,
+            model=redact(self.model_desc),
+            session=summary,
+            uptime_s=time.monotonic() - self._t0,
+            mode=self.mode,
+            model_error=redact(self.model_error),
+            queued=queued,
+        )
+
+    # -- runner thread: one recognition at a time
+    def _runner_loop(self) -> None:
+        while True:
+            with self._cv:
+                self._cv.wait_for(lambda: bool(self._pending) or self._closing)
+                if self._closing:
+                    return
+                job = self._pending.popleft()
+                running = _Running(job, threading.Event(), _Interlock(), time.time())
+                self._running = running
+            try:
+                self._serve(running)
+            finally:
+                self._finish(running)
+
+    def _serve(self, running: _Running) -> None:
+        job = running.job
+        with job.query as query:
+            result: RecognizeResult | None = None
+            error: Exception | None = None
+            try:
+                waited = time.monotonic() - job.arrived
+                if job.budget is not None and waited > job.budget:
+                    raise NodeUnavailableError(
+                        f"recognition {job.session_id} waited {waited:.1f} s in the queue, "
+                        f"longer than its caller's timeout ({job.budget:g} s); not started"
+                    )
+                watch = self._watch_requester(running)
+                try:
+                    result = self._recognize(running)
+                finally:
+                    undeclare_quietly(watch)
+            except Exception as e:
+                error = e
+            # Done before the caller hears of it: a status it asks next shows no session.
+            self._finish(running)
+            if result is not None:
+                try:
+                    query.reply(self.keys.recognize, encode(Reply.success(result)), encoding=JSON)
+                except Exception:
+                    log.warning("cannot send the result", exc_info=True)
+                log.info(
+                    "recognition done",
+                    extra={
+                        "session": job.session_id,
+                        "object": result.object,
+                        "label": result.label,
+                        "probability": round(result.probability, 4),
+                        "grasps": result.moves,
+                        "stop_reason": result.stop_reason,
+                        "elapsed_s": round(result.elapsed_s, 4),
+                        "place_s": round(running.place_s, 4),
+                        "session_s": round(running.session_s, 4),
+                        "planning_s": round(result.planning_s, 4),
+                    },
+                )
+                return
+            assert error is not None
+            if isinstance(error, ActiveTouchError | ValueError):
+                log.warning(
+                    "recognition failed",
+                    extra={
+                        "session": job.session_id,
+                        "error_type": type(error).__name__,
+                        "error": str(error),
+                    },
+                )
+            else:
+                log.error(
+                    "recognition crashed",
+                    exc_info=error,
+                    extra={"session": job.session_id},
+                )
+            _reply_error(query, error)
+
+    def _watch_requester(self, running: _Running) -> Any:
+        """Cancel `running` when its requester goes away (its client closed or was killed):
+        the client holds the liveliness token ``requests/<session_id>`` while it waits. A
+        request without one (a plain Zenoh client, or ``recognize --detach``) runs detached.
+        Returns the handle to undeclare, or None."""
+        sid = running.job.session_id
+        watch = self.links.watch_requester
+
+        def gone() -> None:
+            log.warning("requester gone: cancelling", extra={"session": sid})
+            running.interlock.trip("its requester is gone")
+            running.cancel.set()
+            if running.policy is not None:
+                running.policy.interrupt()
+
+        handle = watch(sid, gone) if watch is not None else None
+        if handle is None:
+            log.info(
+                "recognition runs detached (its requester holds no token)", extra={"session": sid}
+            )
+        return handle
+
+    def _finish(self, running: _Running) -> None:
+        with self._cv:
+            if self._running is running:
+                self._running = None
+                self._cv.notify_all()
+
+    def _recognize(self, running: _Running) -> RecognizeResult:
+        from activetouch.session.loop import Progress as SessionProgress
+        from activetouch.session.loop import RecognitionSession, belief_table_of
+
+        job, req, cfg = running.job, running.job.request, self.cfg
+        model = self.model
+        if model is None:  # unloaded since admission (cannot happen today; keep the text)
+            raise DataError(f"no model: run `activetouch train` ({self.model_error})")
+        sid = job.session_id
+        wc = cfg.workcell
+        placement = workcell_placement(wc)
+        if self.links.place is not None:
+            running.interlock.check("placing the object")
+            assert req.object is not None
+            t_place = time.perf_counter()
+            placed = self.links.place(req.object, job.seed)
+            running.place_s = time.perf_counter() - t_place
+            # A simulated robot stands the object on the workcell's table.
+            placement = dataclasses.replace(
+                placement,
+                xyz=np.array(
+                    [wc.object_xyz[0], wc.object_xyz[1], wc.table_top_z + placed.extents[2] / 2]
+                ),
+            )
+        support_z = placement.support_z(wc.table_top_z)
+        # A new recognition is the operator's go-ahead after a stop (see the module).
+        running.interlock.check("starting")
+        self.hand.clear_stop()
+        self.arm.clear_stop()
+        planner_cfg = dataclasses.replace(
+            cfg.planner,
+            horizon=req.horizon or cfg.planner.horizon,
+            simulations=req.simulations or cfg.planner.simulations,
+        )
+        policy = _TimedPolicy(
+            make_policy(
+                req.policy,
+                planner_cfg,
+                model.observation,
+                self._kernel,
+                belief_table_of(model, cfg.recognition),
+            ),
+            self.svc.max_plan_s,
+        )
+        running.policy = policy
+        session_cfg = dataclasses.replace(cfg.session, max_moves=req.max_moves)
+        rng = np.random.default_rng(job.seed)
+
+        def on_progress(ev: SessionProgress) -> None:
+            running.move = ev.move
+            pose = np.asarray(ev.pose, dtype=np.float64)
+            msg = Progress(
+                session_id=sid,
+                move=ev.move,
+                pose=PoseMsg(xyz=tuple(pose[:3].tolist()), quat=tuple(pose[3:].tolist())),
+                n_contacts=ev.n_contacts,
+                top3=[(label, _probability(p)) for label, p in ev.top[:3]],
+                skipped=ev.skipped,
+                planning_s=policy.take(),
+                stamp=time.time(),
+                pose_id=ev.pose_id,
+                elapsed_s=max(0.0, ev.elapsed_s),
+                motion_s=max(0.0, ev.motion_s),
+            )
+            publish = self.links.publish
+            if publish is not None:
+                try:
+                    publish(encode(msg))
+                except Exception as e:  # a lost progress sample must not end the recognition
+                    log.warning("publishing progress failed", extra={"error": str(e)})
+
+        session = RecognitionSession(
+            _GuardedHand(self.hand, running.interlock),
+            _GuardedWrist(self.arm, running.interlock),
+            model,
+            policy,
+            session_cfg,
+            rng,
+            on_progress,
+            running.cancel,
+            support_z=support_z,
+            recognition=self.cfg.recognition,
+        )
+        t_run = time.perf_counter()
+        try:
+            res = session.run()
+            running.session_s = time.perf_counter() - t_run
+        except Exception as e:
+            if running.interlock.reason is not None:
+                raise RecognitionAbortedError(
+                    f"recognition {sid} aborted after {running.move} grasps: "
+                    f"{running.interlock.reason}"
+                ) from e
+            raise
+        if running.interlock.reason is not None:
+            raise RecognitionAbortedError(
+                f"recognition {sid} aborted after {running.move} grasps: {running.interlock.reason}"
+            )
+        return RecognizeResult(
+            session_id=sid,
+            label=res.label,
+            probability=_probability(res.probability),
+            labels=list(res.labels),
+            moves=len(res.labels),
+            skipped=res.skipped,
+            planning_s=max(0.0, res.planning_s),
+            elapsed_s=time.monotonic() - job.arrived,
+            policy=req.policy,
+            seed=job.seed,
+            object=req.object,
+            stop_reason=res.stop_reason,
+            pose_ids=[int(p) for p in res.pose_ids],
+            motion_s=max(0.0, res.motion_s),
+            motion_planning_s=max(0.0, res.motion_planning_s),
+            grasp_s=max(0.0, res.grasp_s),
+            search_s=res.search_s,
+            total_s=max(0.0, res.total_s),
+        )
+
+    # -- e-stop thread
+    def _estop_loop(self) -> None:
+        while True:
+            item = self._estop_q.get()
+            if item is _STOP:
+                return
+            _key, query, _arrived = item
+            with query:
+                try:
+                    req = _parse(query, EStopRequest)
+                    result = self.estop(req.reason)
+                    query.reply(self.keys.estop, encode(Reply.success(result)), encoding=JSON)
+                except Exception as e:
+                    if not isinstance(e, ActiveTouchError | ValueError):
+                        log.exception("estop failed")
+                    _reply_error(query, e)
+
+    def _abort_all(self, reason: str) -> _Running | None:
+        """Trip the running recognition's interlock and fail every queued one."""
+        with self._cv:
+            cur = self._running
+            dropped = list(self._pending)
+            self._pending.clear()
+        if cur is not None:
+            cur.interlock.trip(reason)
+            cur.cancel.set()
+            if cur.policy is not None:
+                cur.policy.interrupt()
+        for job in dropped:
+            with job.query as q:
+                _reply_error(
+                    q,
+                    RecognitionAbortedError(f"recognition {job.session_id} not started: {reason}"),
+                )
+        return cur
+
+    def estop(self, reason: str = "") -> EStopResult:
+        """Abort the recognition, stop the arm, open the hand."""
+        text = "emergency stop" + (f" ({reason})" if reason else "")
+        cur = self._abort_all(text)
+        log.warning(
+            "emergency stop",
+            extra={"reason": reason, "session": cur.job.session_id if cur else None},
+        )
+        errors: list[str] = []
+        arm_stopped = hand_opened = False
+        try:
+            self.arm.estop()  # stop, and the robot's own e-stop where it has one
+            arm_stopped = True
+        except Exception as e:
+            errors.append(f"arm stop: {e}")
+        try:
+            self.hand.stop()  # ends a running grasp, so the open below is not queued behind it
+        except Exception as e:
+            errors.append(f"hand stop: {e}")
+        try:
+            self.hand.open()
+            hand_opened = True
+        except Exception as e:
+            errors.append(f"hand open: {e}")
+        if errors:
+            log.error("emergency stop incomplete", extra={"errors": "; ".join(errors)})
+        return EStopResult(arm_stopped=arm_stopped, hand_opened=hand_opened, errors=errors)
+
+    # -- shutdown
+    def close(self, reason: str = "the recognition daemon is shutting down") -> None:
+        """Stop serving, abort the running recognition, join the threads. Idempotent."""
+        with self._cv:
+            if self._closing and not self._queryables and self._token is None:
+                return
+            self._closing = True
+            self._cv.notify_all()
+        undeclare_quietly(self._token, *self._queryables)
+        self._token = None
+        self._queryables.clear()
+        cur = self._abort_all(reason)
+        runner = self._threads[1]
+        if runner.is_alive():
+            runner.join(self.svc.shutdown_timeout_s)
+            if runner.is_alive():
+                log.warning(
+                    "recognition still running at shutdown; leaving it",
+                    extra={"session": cur.job.session_id if cur else None},
+                )
+        for q, t in ((self._control_q, self._threads[0]), (self._estop_q, self._threads[2])):
+            q.put(_STOP)
+            if t.is_alive() and t is not threading.current_thread():
+                t.join(1.0)
+        while self.links.closers:
+            close = self.links.closers.pop()
+            try:
+                close()
+            except Exception:
+                log.debug("close failed", exc_info=True)
+        log.info("recognition service closed")

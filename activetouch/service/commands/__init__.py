@@ -1,1 +1,0 @@
-"""The `activetouch` sub-commands, one module each; each exposes `register(subparsers)`."""

@@ -1,0 +1,163 @@
+"""One recognition in the twin: place the object, build the policy, run the session.
+
+Used by `activetouch recognize`, `eval`, `demo` and the daemon's simulated robot."""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from activetouch import paths
+from activetouch.config import Config, SessionConfig
+from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
+from activetouch.errors import ConfigError, DataError
+from activetouch.model import TrainedModel, load_model
+from activetouch.objects.library import ObjectLibrary
+from activetouch.planning.policies import POLICY_NAMES, Policy, make_policy
+from activetouch.session.loop import (
+    Progress,
+    RecognitionResult,
+    RecognitionSession,
+    belief_table_of,
+)
+
+if TYPE_CHECKING:
+    from activetouch.devices import Devices
+    from activetouch.planning.motion.base import Placement
+
+
+def model_path(root: Path, explicit: str | None) -> Path:
+    return Path(explicit) if explicit else paths.default_model(root)
+
+
+def load_trained(path: Path) -> TrainedModel:
+    if not (path / "model.json").is_file():
+        raise DataError(f"no model at {path}: train one first with `activetouch train`")
+    return load_model(path)
+
+
+def check_request(policy: str, max_moves: int, seed: int = 0) -> None:
+    if seed < 0:
+        raise ConfigError(f"the seed must be >= 0, got {seed}")
+    if policy not in POLICY_NAMES:
+        raise ConfigError(f"unknown policy {policy!r}; choose from {', '.join(POLICY_NAMES)}")
+    if max_moves < 1:
+        raise ConfigError(f"the move budget must be at least 1, got {max_moves}")
+
+
+def recognize_in_twin(
+    model: TrainedModel,
+    library: ObjectLibrary,
+    object_name: str,
+    policy_name: str,
+    seed: int,
+    cfg: Config,
+    max_moves: int | None = None,
+    on_progress: Callable[[Progress], None] | None = None,
+    cancel: threading.Event | None = None,
+) -> RecognitionResult:
+    """Recognise `object_name` placed in a fresh twin; deterministic for a seed.
+
+    The floating twin (``arm.type = "twin-floating"``, the default) is opened directly; any
+    other arm (``twin-baxter``) runs on the configured devices (`make_devices`), which place
+    the object as ``sim/place`` does. `data` is the data directory those devices read the
+    object library from (default: the library's)."""
+    from activetouch.sim.twin import open_twin
+
+    session_cfg = cfg.session
+    if max_moves is not None:
+        session_cfg = type(cfg.session)(**{**vars(cfg.session), "max_moves": int(max_moves)})
+    check_request(policy_name, session_cfg.max_moves, seed)
+    spec = library.get(object_name)
+    policy = make_policy(
+        policy_name,
+        cfg.planner,
+        model.observation,
+        model.classifier.kernel(),
+        belief_table_of(model, cfg.recognition),
+    )
+    rng = np.random.default_rng(seed)
+    if cfg.arm.type != FLOATING_ARM:
+        return _recognize_on_devices(
+            model, library, spec.name, policy, rng, seed, cfg, session_cfg, on_progress, cancel
+        )
+    with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
+        session = RecognitionSession(
+            twin.hand,
+            twin.wrist,
+            model,
+            policy,
+            session_cfg,
+            rng,
+            on_progress,
+            cancel,
+            support_z=twin.support_z,
+            recognition=cfg.recognition,
+        )
+        return session.run()
+
+
+def _recognize_on_devices(
+    model: TrainedModel,
+    library: ObjectLibrary,
+    object_name: str,
+    policy: Policy,
+    rng: np.random.Generator,
+    seed: int,
+    cfg: Config,
+    session_cfg: SessionConfig,
+    on_progress: Callable[[Progress], None] | None,
+    cancel: threading.Event | None,
+) -> RecognitionResult:
+    """The recognition on `make_devices(cfg)`: placed through the devices' ``sim/place``, the
+    wrist told where the object stands, the table plane from the workcell (as the daemon
+    does it)."""
+    # The library's root is <data>/objects: the devices find the same objects there.
+    with placed_devices(cfg, library.root.parent, object_name, seed, "recognize") as (
+        devices,
+        placement,
+    ):
+        session = RecognitionSession(
+            devices.hand,
+            devices.wrist,
+            model,
+            policy,
+            session_cfg,
+            rng,
+            on_progress,
+            cancel,
+            support_z=placement.support_z(cfg.workcell.table_top_z),
+            recognition=cfg.recognition,
+        )
+        return session.run()
+
+
+@contextlib.contextmanager
+def placed_devices(
+    cfg: Config, data: Path, object_name: str, seed: int, what: str
+) -> Iterator[tuple[Devices, Placement]]:
+    """`make_devices(cfg, data)` with `object_name` placed through their ``sim/place`` and the
+    wrist told where it stands; closed on exit. ConfigError for devices that cannot place
+    (real ones): `what` names the command for the message."""
+    from activetouch.devices import make_devices
+    from activetouch.transport.messages import SimPlaceRequest
+
+    devices = make_devices(cfg, data)
+    try:
+        if not devices.simulated or devices.ctx.place is None:
+            raise ConfigError(
+                f"hand.type={cfg.hand.type!r} with arm.type={cfg.arm.type!r} cannot place "
+                f"{object_name!r}: {what} in-process needs simulated devices (twin, fake); "
+                "for a real robot run `activetouch serve --hardware` and `recognize --connect`"
+            )
+        devices.ctx.place(SimPlaceRequest(object=object_name, seed=seed))
+        placement = devices.placement()
+        devices.wrist.set_placement(placement)
+        yield devices, placement
+    finally:
+        devices.close()
