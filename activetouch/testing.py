@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from activetouch.devices import ArmConfig, DeviceContext, HandConfig
+from activetouch.device_types import ArmConfig, HandConfig
+from activetouch.devices import DeviceContext
 from activetouch.errors import ConfigError, DataError, UnreachableError
 from activetouch.interfaces import (
     N_FINGERS,

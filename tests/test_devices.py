@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from activetouch.config import load_config
-from activetouch.devices import HAND_TYPES, make_devices
+from activetouch.device_types import HAND_TYPES
+from activetouch.devices import make_devices
 from activetouch.errors import ConfigError, StoppedError, UnreachableError
 from activetouch.interfaces import JointTrajectory, Pose
 from activetouch.planning.motion.floating import WRIST_JOINTS

@@ -152,20 +152,6 @@ def touch_orientations(st: MountSettings) -> list[Rotation]:
     return out
 
 
-def onset_height(z: np.ndarray, pressure: np.ndarray, threshold: float) -> float:
-    """Height where a pressure that rises linearly with depth (z decreasing) starts: a line
-    through the readings over `threshold`, at pressure 0. Falls back to the first reading
-    over threshold when fewer than two readings rise."""
-    z = np.asarray(z, dtype=np.float64)
-    p = np.asarray(pressure, dtype=np.float64)
-    sel = p > threshold
-    if sel.sum() >= 2 and np.ptp(z[sel]) > 1e-9:
-        a, b = np.polyfit(z[sel], p[sel], 1)
-        if a < 0:
-            return float(-b / a)
-    return float(z[sel].max()) if sel.any() else float("nan")
-
-
 def mount_record(
     device: str,
     fit: MountFit,
@@ -214,7 +200,11 @@ def calibrate_mount(
     """Touch the table at every orientation of `touch_orientations` and solve for the mount.
     `flange` is a `probing.Flange`; the hand is opened first (its open geometry is the probe).
     """
-    from activetouch.calibration.probing import guarded_descent, hand_points, lowest_point_start
+    from activetouch.calibration.probing import (
+        guarded_descent,
+        hand_points,
+        lowest_point_start,
+    )
 
     st = settings or MountSettings()
     hand.open()

@@ -14,7 +14,6 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from activetouch.calibration.mount import onset_height
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import N_FINGERS, Arm, Hand, Pose
@@ -50,6 +49,20 @@ class FloatingFlange:
         start = self.arm.joint_state().position
         goal = pose_to_wrist_joints(pose)
         self.arm.execute(straight_trajectory(start, goal, self.arm.limits.velocity))
+
+
+def onset_height(z: np.ndarray, pressure: np.ndarray, threshold: float) -> float:
+    """Height where a pressure that rises linearly with depth (z decreasing) starts: a line
+    through the readings over `threshold`, at pressure 0. Falls back to the first reading
+    over threshold when fewer than two readings rise."""
+    z = np.asarray(z, dtype=np.float64)
+    p = np.asarray(pressure, dtype=np.float64)
+    sel = p > threshold
+    if sel.sum() >= 2 and np.ptp(z[sel]) > 1e-9:
+        a, b = np.polyfit(z[sel], p[sel], 1)
+        if a < 0:
+            return float(-b / a)
+    return float(z[sel].max()) if sel.any() else float("nan")
 
 
 def hand_points(preshape: float = 0.0, proximal=None, distal=None) -> np.ndarray:

@@ -178,3 +178,16 @@ def staleness(
             f"{kind} calibration of {record.device} is {age:.1f} days old (> {limit:g}): run {cmd}"
         )
     return None
+
+
+def device_name(cfg: Any, explicit: str | None) -> str:
+    """The name a hand's calibration is stored under: `explicit`, else the hand's serial or
+    name setting, else its type."""
+    if explicit:
+        return explicit
+    hand = cfg.hand
+    for attr in ("serial", "name"):
+        v = getattr(hand, attr, "")
+        if v:
+            return str(v)
+    return str(hand.type or "hand")

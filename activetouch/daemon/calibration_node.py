@@ -31,8 +31,8 @@ import zenoh
 
 from activetouch import paths
 from activetouch.calibration import store
-from activetouch.calibration.store import KINDS, CalibrationRecord
-from activetouch.daemon.nodes import _Op, _ServedNode
+from activetouch.calibration.store import KINDS, CalibrationRecord, device_name
+from activetouch.daemon.serving import Op, ServedNode
 from activetouch.errors import ActiveTouchError
 from activetouch.interfaces import Pose
 from activetouch.transport.keys import Keys
@@ -69,8 +69,6 @@ class CalibrateResult(Message, kw_only=True):
 
 
 def hand_device(cfg: Any, explicit: str | None) -> str:
-    from activetouch.cli.commands.calibrate import device_name
-
     return device_name(cfg, explicit)
 
 
@@ -160,7 +158,7 @@ PROCEDURES = {
 }
 
 
-class CalibrationNode(_ServedNode):
+class CalibrationNode(ServedNode):
     """``calibrate/<kind>`` for every procedure, run on `devices` (`activetouch.devices.Devices`)
     with `lock` (the devices' lock, by default) held."""
 
@@ -178,7 +176,7 @@ class CalibrationNode(_ServedNode):
         self.devices = devices
         self.root = paths.data_dir(devices.ctx.data)
         self._ops = {
-            kind: _Op(calibrate_key(keys, kind), CalibrateRequest, self._runner(kind))
+            kind: Op(calibrate_key(keys, kind), CalibrateRequest, self._runner(kind))
             for kind in KINDS
         }
         self._start()

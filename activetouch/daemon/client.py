@@ -31,13 +31,8 @@ import msgspec
 import numpy as np
 import zenoh
 
-from activetouch.daemon.nodes import (
-    _DONE,
-    _GONE,
-    _GRACE_S,
-    _direct,
-    _RemoteNode,
-)
+from activetouch.daemon.remote import DONE, GONE, GRACE_S, RemoteNode
+from activetouch.daemon.serving import direct
 from activetouch.errors import ActiveTouchError, MessageError, NodeUnavailableError
 from activetouch.session.loop import Progress as SessionProgress
 from activetouch.session.loop import RecognitionResult
@@ -85,7 +80,7 @@ def new_session_id() -> str:
     return uuid.uuid4().hex[:12]
 
 
-class DaemonClient(_RemoteNode):
+class DaemonClient(RemoteNode):
     """The recognition daemon of `robot`, reached through `session`.
 
     `timeout` bounds the quick queries (status, cancel, estop); `recognize` takes its own."""
@@ -138,7 +133,7 @@ class DaemonClient(_RemoteNode):
             if msg.session_id == sid:
                 q.put((_PROGRESS, msg))
 
-        sub = self._session.declare_subscriber(self.keys.progress, _direct(on_sample))
+        sub = self._session.declare_subscriber(self.keys.progress, direct(on_sample))
         token = None
         if not detached:
             token = self._session.liveliness().declare_token(self.keys.requester(sid))
@@ -147,15 +142,15 @@ class DaemonClient(_RemoteNode):
         start = time.monotonic()
         try:
             self._query(self.keys.recognize, request, q, timeout)
-            deadline = start + timeout + _GRACE_S
+            deadline = start + timeout + GRACE_S
             reply: Reply | None = None
             gone = False
             while True:
                 try:
                     item = q.get(timeout=max(0.0, deadline - time.monotonic()))
                 except queue.Empty:
-                    item = _DONE
-                if item is _GONE:
+                    item = DONE
+                if item is GONE:
                     # A daemon shutting down drops its token first and then answers (why it
                     # stopped): wait a moment for that answer; a crashed one sends none.
                     gone = True
@@ -174,7 +169,7 @@ class DaemonClient(_RemoteNode):
                     # draining until the get is done, then answer.
                     reply = decode(item.result.payload.to_bytes(), Reply[RecognizeResult])
                     continue
-                if item is _DONE:
+                if item is DONE:
                     break
             if reply is None and gone:
                 raise NodeUnavailableError(

@@ -29,8 +29,8 @@ from pathlib import Path
 from typing import Any
 
 from activetouch.config import Config, ServiceConfig
+from activetouch.daemon.device_nodes import DeviceNodes
 from activetouch.daemon.logs import JsonFormatter, LogfmtFormatter, setup_logging
-from activetouch.daemon.nodes import DeviceNodes
 from activetouch.daemon.recognition_service import RecognitionService
 from activetouch.daemon.systemd import sd_notify, watchdog_period
 from activetouch.errors import ConfigError

@@ -47,17 +47,9 @@ import zenoh
 
 from activetouch.config import Config
 from activetouch.daemon.client import BusyError, RecognitionAbortedError
-from activetouch.daemon.nodes import (
-    JSON,
-    TIMEOUT_PARAM,
-    AliveNodes,
-    RemoteArm,
-    RemoteHand,
-    RemotePlace,
-    _Coalesced,
-    _direct,
-    tokens_left,
-)
+from activetouch.daemon.liveliness import AliveNodes, tokens_left
+from activetouch.daemon.remote import Coalesced, RemoteArm, RemoteHand, RemotePlace
+from activetouch.daemon.serving import JSON, direct, query_budget
 from activetouch.errors import (
     ActiveTouchError,
     DataError,
@@ -200,7 +192,7 @@ class _TimedPolicy(Policy):
 
 
 @dataclass
-class _Job:
+class Job:
     query: zenoh.Query
     request: RecognizeRequest
     session_id: str
@@ -211,7 +203,7 @@ class _Job:
 
 @dataclass
 class _Running:
-    job: _Job
+    job: Job
     cancel: threading.Event
     interlock: _Interlock
     started: float  # wall clock
@@ -231,14 +223,6 @@ def _parse(query: zenoh.Query, request_type: type[Message]) -> Any:
     if not data and request_type in (Empty, CancelRequest, EStopRequest):
         return request_type()
     return decode(data, request_type)
-
-
-def _budget(query: zenoh.Query) -> float | None:
-    try:
-        raw = query.parameters.get(TIMEOUT_PARAM)
-        return float(raw) if raw else None
-    except (TypeError, ValueError):
-        return None
 
 
 # Local paths in texts sent to clients, replaced by placeholders (the log keeps them): a
@@ -313,13 +297,13 @@ def zenoh_links(session: zenoh.Session, robot: str, mode: str, svc: Any) -> Serv
             if not tokens_left(session, key):
                 on_gone()
 
-        check = _Coalesced(confirm, "activetouch-requester")
+        check = Coalesced(confirm, "activetouch-requester")
 
         def on_sample(sample: zenoh.Sample) -> None:
             if sample.kind == zenoh.SampleKind.DELETE:
                 check.request()  # confirm off Zenoh's thread: a spoofed drop changes nothing
 
-        return session.liveliness().declare_subscriber(key, _direct(on_sample))
+        return session.liveliness().declare_subscriber(key, direct(on_sample))
 
     return ServiceLinks(
         hand=hand,
@@ -423,7 +407,7 @@ class RecognitionService:
             self.model_error = str(e)
             log.warning("no model", extra={"model": str(model_dir), "error": str(e)})
         self._cv = threading.Condition()
-        self._pending: deque[_Job] = deque()
+        self._pending: deque[Job] = deque()
         self._running: _Running | None = None
         self._closing = False
         self._control_q: queue.SimpleQueue = queue.SimpleQueue()
@@ -484,7 +468,7 @@ class RecognitionService:
                 return  # in memory: queries come through `submit`
             for key in (k.recognize, k.cancel, k.status, k.estop):
                 self._queryables.append(
-                    self._session.declare_queryable(key, _direct(self._enqueuer(key)))
+                    self._session.declare_queryable(key, direct(self._enqueuer(key)))
                 )
             deadline = time.monotonic() + wait_nodes
             for node in (self.hand, self.arm):
@@ -626,7 +610,7 @@ class RecognitionService:
                 busy = self._running is not None or bool(self._pending)
                 if busy and len(self._pending) >= self.svc.max_queued:
                     raise BusyError(self._busy_text())
-                job = _Job(query, req, sid, seed, arrived, _budget(query))
+                job = Job(query, req, sid, seed, arrived, query_budget(query))
                 self._pending.append(job)
                 self._cv.notify_all()
         except Exception as e:
@@ -650,7 +634,7 @@ class RecognitionService:
         )
 
     def _cancel(self, req: CancelRequest) -> CancelResult:
-        dropped: _Job | None = None
+        dropped: Job | None = None
         with self._cv:
             cur = self._running
             if cur is not None and req.session_id in (None, cur.job.session_id):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from activetouch.config import SIM_ERROR_SETTINGS, Config
-from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
+from activetouch.device_types import DEFAULT_ARM as FLOATING_ARM
 from activetouch.model import TrainedModel, train_model
 from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.collect import CollectStats, collect_object, pending_poses

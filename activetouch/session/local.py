@@ -14,7 +14,7 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import Config, SessionConfig
-from activetouch.devices import DEFAULT_ARM as FLOATING_ARM
+from activetouch.device_types import DEFAULT_ARM as FLOATING_ARM
 from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import ObjectLibrary

@@ -7,6 +7,9 @@ cost that); the modules that use it call `import_pybullet_quietly()` first."""
 import os
 import sys
 
+# How the twin arm gets to a goal (`arm.path`): at once, or along a straight joint-space line.
+PATHS = ("teleport", "straight")
+
 
 def import_pybullet_quietly() -> None:
     """PyBullet's C code prints its build date to stderr on every import (once per worker

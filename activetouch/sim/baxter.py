@@ -41,7 +41,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from activetouch.devices import ArmConfig, DeviceContext
+from activetouch.device_types import ArmConfig
+from activetouch.devices import DeviceContext
 from activetouch.errors import ActiveTouchError, ConfigError, MotionBlockedError, UnreachableError
 from activetouch.interfaces import (
     Arm,

@@ -17,7 +17,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from activetouch.devices import ArmConfig, DeviceContext, HandConfig
+from activetouch.device_types import ArmConfig, HandConfig
+from activetouch.devices import DeviceContext
 from activetouch.errors import ConfigError
 from activetouch.interfaces import (
     Arm,
@@ -29,6 +30,7 @@ from activetouch.interfaces import (
     Pose,
     StopLatch,
 )
+from activetouch.sim import PATHS
 
 if TYPE_CHECKING:
     from activetouch.config import Config
@@ -38,7 +40,6 @@ log = logging.getLogger(__name__)
 
 TWIN = "twin"  # the shared resource's name (and its lock's)
 # How the floating wrist gets from point to point of a trajectory (see `SimArm`).
-PATHS = ("teleport", "straight")
 
 
 @dataclass

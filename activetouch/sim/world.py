@@ -66,7 +66,7 @@ from activetouch.planning.motion.floating import (
     wrist_joints_to_pose,
     wrist_trajectory_positions,
 )
-from activetouch.sim.devices import PATHS
+from activetouch.sim import PATHS
 from activetouch.sim.pybullet import pb
 
 if TYPE_CHECKING:

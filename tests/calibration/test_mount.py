@@ -13,11 +13,10 @@ from activetouch.calibration.mount import (
     calibrate_mount,
     compose,
     inverse,
-    onset_height,
     solve_mount,
     touch_orientations,
 )
-from activetouch.calibration.probing import hand_points, lowest_point_start
+from activetouch.calibration.probing import hand_points, lowest_point_start, onset_height
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.interfaces import Pose
 

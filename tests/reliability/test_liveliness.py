@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import time
 
-from activetouch.daemon.nodes import AliveNodes, HandNode, RemoteHand
+from activetouch.daemon.liveliness import AliveNodes
+from activetouch.daemon.nodes import HandNode
+from activetouch.daemon.remote import RemoteHand
 from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 from tests.service.test_nodes import FakeHand
 

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from activetouch.daemon.client import DaemonClient
-from activetouch.daemon.nodes import RemoteHand
+from activetouch.daemon.remote import RemoteHand
 from activetouch.errors import NodeUnavailableError
 from activetouch.transport.keys import DAEMON_NODE, HAND_NODE, Keys
 from activetouch.transport.messages import RecognizeRequest

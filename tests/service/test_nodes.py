@@ -9,14 +9,9 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from activetouch.daemon.nodes import (
-    AliveNodes,
-    ArmNode,
-    HandNode,
-    Latest,
-    RemoteArm,
-    RemoteHand,
-)
+from activetouch.daemon.liveliness import AliveNodes
+from activetouch.daemon.nodes import ArmNode, HandNode
+from activetouch.daemon.remote import Latest, RemoteArm, RemoteHand
 from activetouch.errors import (
     DataError,
     MessageError,
@@ -497,7 +492,8 @@ EXIT_SCRIPT = """
 import sys
 sys.path.insert(0, {tests!r})
 from test_nodes import FakeArm, FakeHand
-from activetouch.daemon.nodes import ArmNode, HandNode, RemoteHand
+from activetouch.daemon.nodes import ArmNode, HandNode
+from activetouch.daemon.remote import RemoteHand
 from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 ep = f"tcp/127.0.0.1:{{free_tcp_port()}}"
 node = ZenohSession(ZenohSettings(listen=(ep,)))
@@ -630,7 +626,7 @@ class StreamingHand(FakeHand):
 def test_a_streaming_hand_is_published_beside_a_running_grasp(
     node_session: ZenohSession, client_session: ZenohSession
 ) -> None:
-    from activetouch.daemon.nodes import Latest
+    from activetouch.daemon.remote import Latest
     from activetouch.transport.messages import HandStateMsg
 
     hand = StreamingHand()

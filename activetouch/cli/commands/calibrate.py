@@ -11,6 +11,7 @@ import numpy as np
 from rich.console import Console
 
 from activetouch import paths
+from activetouch.calibration.store import device_name
 from activetouch.errors import ActiveTouchError
 
 PROCEDURES = ("tactile", "fingers", "mount", "object")
@@ -52,17 +53,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--directions", type=int, default=None, help="object: approaches (8)")
     add_common_options(p)
     p.set_defaults(func=run)
-
-
-def device_name(cfg, explicit: str | None) -> str:
-    if explicit:
-        return explicit
-    hand = cfg.hand
-    for attr in ("serial", "name"):
-        v = getattr(hand, attr, "")
-        if v:
-            return str(v)
-    return str(hand.type or "hand")
 
 
 def run(args: argparse.Namespace) -> int:

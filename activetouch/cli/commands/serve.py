@@ -152,7 +152,7 @@ def resolve_mode(flag: str | None, cfg: Config) -> str:
     """``sim`` or ``hardware``: from --sim / --hardware, else from the configured devices.
     --sim makes the devices the twin's, unless simulated types are configured already."""
     from activetouch.config import set_devices
-    from activetouch.devices import DEFAULT_ARM, DEFAULT_HAND
+    from activetouch.device_types import DEFAULT_ARM, DEFAULT_HAND
 
     if flag == "sim":
         raw = {
@@ -252,7 +252,7 @@ def run_estop(args: argparse.Namespace) -> int:
 
 
 def run_arm(args: argparse.Namespace) -> int:
-    from activetouch.daemon.nodes import RemoteArm
+    from activetouch.daemon.remote import RemoteArm
     from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 
     cfg = service_config(args)

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from activetouch.devices import ArmConfig
+from activetouch.device_types import ArmConfig
 from activetouch.drivers.baxter import ros1
 from activetouch.errors import (
     ConfigError,

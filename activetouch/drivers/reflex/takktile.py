@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from activetouch.devices import HandConfig
+from activetouch.device_types import HandConfig
 from activetouch.drivers.reflex import codec, kinematics
 from activetouch.drivers.reflex.common import (
     CloseStep,

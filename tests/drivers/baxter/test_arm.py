@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from activetouch.devices import device_config
+from activetouch.device_types import device_config
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArm, BaxterArmConfig, TrackingError
 from activetouch.emulators.baxter_bridge import BaxterEmulator, EmulatorSettings

@@ -11,7 +11,8 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from activetouch.daemon.nodes import ArmNode, RemoteArm
+from activetouch.daemon.nodes import ArmNode
+from activetouch.daemon.remote import RemoteArm
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArm, BaxterArmConfig
 from activetouch.interfaces import JointTrajectory

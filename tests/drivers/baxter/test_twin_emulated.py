@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from activetouch.config import load_config
-from activetouch.devices import device_config
+from activetouch.device_types import device_config
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArmConfig
 from activetouch.errors import ConfigError, StoppedError, UnreachableError

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from activetouch.devices import device_config
+from activetouch.device_types import device_config
 from activetouch.drivers.reflex.common import StreamLostError
 from activetouch.drivers.reflex.kinematics import contact_sites
 from activetouch.drivers.reflex.sf import ReflexSFConfig, ReflexSFHand

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from activetouch.devices import config_class, device_config
+from activetouch.device_types import config_class, device_config
 from activetouch.drivers.reflex.common import StreamLostError
 from activetouch.drivers.reflex.takktile import ReflexTakktileHand
 from activetouch.errors import ConfigError, StoppedError

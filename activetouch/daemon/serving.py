@@ -1,0 +1,286 @@
+"""The serving base of every queryable node (device nodes, calibration, recognition):
+Zenoh callbacks only enqueue a query; one worker thread per node owns what it serves, runs one
+command at a time in arrival order, replies, and publishes state between commands. A query may
+carry ``timeout=<seconds>``: a command that waited longer than that is answered with an error
+instead of run (its caller has given up)."""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import zenoh
+
+from activetouch.errors import (
+    ActiveTouchError,
+    ConfigError,
+    MessageError,
+    NodeUnavailableError,
+)
+from activetouch.transport.keys import Keys
+from activetouch.transport.messages import (
+    Empty,
+    Message,
+    Reply,
+    decode,
+    encode,
+)
+from activetouch.transport.zenoh_session import close_at_exit, undeclare_quietly
+
+log = logging.getLogger(__name__)
+
+
+JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+TIMEOUT_PARAM = "timeout"
+
+
+_STOP = object()  # worker sentinel
+
+
+MAX_STREAM_HZ = 100.0  # a streaming hand's state is published at most this often
+
+
+M = TypeVar("M", bound=Message)
+
+
+def direct(fn: Callable[[Any], Any], drop: Callable[[], Any] | None = None) -> Any:
+    """A Zenoh callback run on Zenoh's own thread (``indirect=False``).
+
+    Ours only enqueue or store, so this is safe and cheap. The default (indirect) mode starts
+    a non-daemon Python thread per declared callback that lives until it is undeclared: a
+    session left open then hangs interpreter exit (threads are joined before atexit runs)."""
+    try:
+        return zenoh.handlers.Callback(fn, drop, indirect=False)
+    except TypeError:  # a zenoh without the (unstable) `indirect` flag
+        return zenoh.handlers.Callback(fn, drop)
+
+
+@dataclass
+class Op:
+    key: str
+    request_type: type[Message]
+    fn: Callable[[Any], Any]  # request -> reply result (a Message or None)
+    fast: bool = False  # served on the priority thread, without the device lock
+
+
+@dataclass
+class Job:
+    op: str
+    query: zenoh.Query
+    arrived: float
+
+
+def query_budget(query: zenoh.Query) -> float | None:
+    try:
+        raw = query.parameters.get(TIMEOUT_PARAM)
+        return float(raw) if raw else None
+    except (TypeError, ValueError):
+        return None
+
+
+class ServedNode:
+    """Queryables feeding one worker thread that owns the device; periodic state publication."""
+
+    node_name = ""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: str,
+        *,
+        state_key: str,
+        state_hz: float,
+        lock: threading.Lock | None,
+    ) -> None:
+        if not state_hz >= 0:
+            raise ConfigError(f"state_hz must be >= 0, got {state_hz}")
+        self.keys = Keys(robot)
+        self.robot = robot
+        self._session = session
+        self._lock = lock if lock is not None else threading.Lock()
+        self._period = 1.0 / state_hz if state_hz > 0 else None
+        self._state_key = state_key
+        self._ops: dict[str, Op] = {}
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._fast_queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._closing = threading.Event()
+        self._closed = False
+        self._busy: str | None = None  # op being executed by the worker
+        self._queryables: list[Any] = []
+        self._publisher: Any = None
+        self._token: Any = None
+        self._last_publish_error = ""
+        self.published = 0  # state samples published so far
+        name = f"activetouch-{self.node_name}-node"
+        self._worker = threading.Thread(target=self._run, args=(self._queue, True), name=name)
+        self._fast_worker = threading.Thread(
+            target=self._run, args=(self._fast_queue, False), name=f"{name}-fast"
+        )
+        self._worker.daemon = self._fast_worker.daemon = True  # a stuck device must not block exit
+
+    # -- subclass hooks
+    def _read_state(self) -> Message:
+        raise NotImplementedError
+
+    def _on_close(self) -> None:
+        """Called on close, before the workers are joined."""
+
+    # -- lifecycle
+    def _start(self) -> None:
+        try:
+            if self._period is not None:
+                self._publisher = self._session.declare_publisher(
+                    self._state_key, encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+                )
+            for name, op in self._ops.items():
+                q = self._fast_queue if op.fast else self._queue
+                self._queryables.append(
+                    self._session.declare_queryable(op.key, direct(self._enqueuer(name, q)))
+                )
+            self._worker.start()
+            self._fast_worker.start()
+            close_at_exit(self)  # stop the workers before the interpreter finalises
+            # Last: a client that sees the token can use every queryable.
+            self._token = self._session.liveliness().declare_token(self.keys.alive(self.node_name))
+        except Exception:
+            self.close()
+            raise
+        log.info(
+            "%s node of robot %s serving under %s", self.node_name, self.robot, self.keys.prefix
+        )
+
+    def _enqueuer(self, op: str, q: queue.SimpleQueue) -> Callable[[zenoh.Query], None]:
+        def on_query(query: zenoh.Query) -> None:
+            # Runs on a Zenoh thread: only hand the query over, never block or call Zenoh here.
+            q.put(Job(op, query, time.monotonic()))
+
+        return on_query
+
+    @property
+    def busy(self) -> str | None:
+        """Name of the command being executed, if any."""
+        return self._busy
+
+    def close(self, join_timeout: float = 2.0) -> None:
+        """Drop the token, stop serving, stop the workers, undeclare. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._closing.set()
+        undeclare_quietly(self._token, *self._queryables)
+        self._token = None
+        self._queryables.clear()
+        try:
+            self._on_close()
+        except Exception:
+            log.exception("%s node: shutdown hook failed", self.node_name)
+        for q, worker in ((self._queue, self._worker), (self._fast_queue, self._fast_worker)):
+            q.put(_STOP)
+            if worker.is_alive() and worker is not threading.current_thread():
+                worker.join(join_timeout)
+                if worker.is_alive():
+                    log.warning(
+                        "%s node: worker still busy with %s after %.1f s; leaving it",
+                        self.node_name,
+                        self._busy,
+                        join_timeout,
+                    )
+        if self._publisher is not None:
+            undeclare_quietly(self._publisher)
+            self._publisher = None
+        log.info("%s node of robot %s closed", self.node_name, self.robot)
+
+    def __enter__(self) -> ServedNode:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- worker
+    def _run(self, q: queue.SimpleQueue, publishes: bool) -> None:
+        period = self._period if publishes else None
+        next_pub = time.monotonic()
+        while True:
+            timeout = None
+            if period is not None and not self._closing.is_set():
+                now = time.monotonic()
+                if now >= next_pub:
+                    self._publish_state()
+                    # Keep the rate without bursts of catch-up samples after a long command.
+                    next_pub = max(next_pub + period, now)
+                timeout = max(0.0, next_pub - time.monotonic())
+            try:
+                job = q.get(timeout=timeout)
+            except queue.Empty:
+                continue
+            if job is _STOP:
+                return
+            self._serve(job)
+
+    def _publish_state(self) -> None:
+        pub = self._publisher
+        if pub is None:
+            return
+        try:
+            with self._lock:
+                msg = self._read_state()
+            pub.put(encode(msg))
+            self.published += 1
+            self._last_publish_error = ""
+        except Exception as e:
+            text = f"{type(e).__name__}: {e}"
+            if text != self._last_publish_error:  # log each distinct failure once, not at 20 Hz
+                log.warning("%s node: publishing state failed: %s", self.node_name, text)
+                self._last_publish_error = text
+
+    def _parse(self, query: zenoh.Query, op: Op) -> Message:
+        payload = query.payload
+        data = payload.to_bytes() if payload is not None else b""
+        if not data:
+            if op.request_type is Empty:
+                return Empty()
+            raise MessageError(
+                f"{op.key} needs a {op.request_type.__name__} payload (JSON), got none"
+            )
+        return decode(data, op.request_type)
+
+    def _serve(self, job: Job) -> None:
+        op = self._ops[job.op]
+        with job.query as query:  # leaving the block drops the query: Zenoh sends the final reply
+            try:
+                if self._closing.is_set():
+                    raise NodeUnavailableError(
+                        f"{self.node_name} node of robot {self.robot} is shutting down"
+                    )
+                waited = time.monotonic() - job.arrived
+                budget = query_budget(query)
+                if budget is not None and waited > budget:
+                    raise NodeUnavailableError(
+                        f"{job.op} waited {waited:.1f} s for the {self.node_name} node, longer "
+                        f"than its caller's timeout ({budget:g} s); not executed"
+                    )
+                request = self._parse(query, op)
+                if op.fast:
+                    result = op.fn(request)
+                else:
+                    self._busy = job.op
+                    try:
+                        with self._lock:
+                            result = op.fn(request)
+                    finally:
+                        self._busy = None
+                query.reply(op.key, encode(Reply.success(result)), encoding=JSON)
+            except Exception as e:
+                if not isinstance(e, ActiveTouchError | ValueError):
+                    log.exception("%s node: %s failed", self.node_name, job.op)
+                try:
+                    query.reply_err(encode(Reply.failure(e)), encoding=JSON)
+                except Exception:
+                    log.debug("%s node: cannot reply to %s", self.node_name, job.op, exc_info=True)
