@@ -37,7 +37,6 @@ import secrets
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -47,8 +46,10 @@ import zenoh
 
 from activetouch.config import Config
 from activetouch.daemon.client import BusyError, RecognitionAbortedError
-from activetouch.daemon.liveliness import AliveNodes, tokens_left
-from activetouch.daemon.remote import Coalesced, RemoteArm, RemoteHand, RemotePlace
+from activetouch.daemon.interlock import GuardedHand, GuardedWrist, Interlock
+from activetouch.daemon.jobs import EXPIRY_SWEEP_S, Job, Running, TimedPolicy
+from activetouch.daemon.links import ServiceLinks, zenoh_links
+from activetouch.daemon.redaction import redact, set_redactions
 from activetouch.daemon.serving import JSON, direct, query_budget
 from activetouch.errors import (
     ActiveTouchError,
@@ -56,9 +57,8 @@ from activetouch.errors import (
     MessageError,
     NodeUnavailableError,
 )
-from activetouch.interfaces import Grasp, Hand, HandWrapper, Pose
-from activetouch.planning.motion.base import WristMotion, workcell_placement
-from activetouch.planning.policies import Plan, PlanningState, Policy, make_policy
+from activetouch.planning.motion.base import workcell_placement
+from activetouch.planning.policies import PlanningState, make_policy
 from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
     CancelRequest,
@@ -82,135 +82,8 @@ from activetouch.transport.zenoh_session import undeclare_quietly
 
 log = logging.getLogger("activetouch.daemon")
 
+
 _STOP = object()
-EXPIRY_SWEEP_S = 0.5  # how often the control thread drops queued requests past their timeout
-REQUESTER_CHECK_S = 0.5  # at the start of a recognition: does its requester hold a token?
-
-
-class _Interlock:
-    """Refuses every further hand/arm command of one recognition once tripped."""
-
-    def __init__(self) -> None:
-        self.reason: str | None = None
-
-    def trip(self, reason: str) -> None:
-        if self.reason is None:
-            self.reason = reason
-
-    def check(self, what: str) -> None:
-        if self.reason is not None:
-            raise RecognitionAbortedError(f"{what} refused: {self.reason}")
-
-
-class _GuardedHand(HandWrapper):
-    """The hand as one recognition uses it: motions refused once its interlock trips. It
-    neither connects nor disconnects the hand (the service does not own it)."""
-
-    def __init__(self, hand: Hand, interlock: _Interlock) -> None:
-        super().__init__(hand)
-        self.interlock = interlock
-
-    def connect(self) -> None:
-        pass
-
-    def disconnect(self) -> None:
-        pass
-
-    def open(self) -> None:
-        self.interlock.check("hand open")
-        self.inner.open()
-
-    def preshape(self, angle: float) -> None:
-        self.interlock.check("hand preshape")
-        self.inner.preshape(angle)
-
-    def guarded_close(self) -> Grasp:
-        self.interlock.check("grasp")
-        return self.inner.guarded_close()
-
-
-class _GuardedWrist(WristMotion):
-    def __init__(self, wrist: WristMotion, interlock: _Interlock) -> None:
-        self.inner, self.interlock = wrist, interlock
-
-    def move_to(self, pose: Pose) -> None:
-        self.interlock.check("arm motion")
-        self.inner.move_to(pose)
-
-    # Robot time of the wrapped wrist (a read: allowed after a trip too).
-    @property  # type: ignore[override]
-    def robot_seconds(self) -> float:
-        return self.inner.robot_seconds
-
-    @property  # type: ignore[override]
-    def planning_seconds(self) -> float:
-        return self.inner.planning_seconds
-
-
-class _TimedPolicy(Policy):
-    """A policy that keeps the planning time since it was last asked (per-move figures), ends
-    a plan that runs past `budget_s` with the best path it has, and can be interrupted for
-    good (cancel, e-stop, shutdown) from another thread."""
-
-    def __init__(self, inner: Policy, budget_s: float | None = None) -> None:
-        self.inner = inner
-        self.name = inner.name
-        self.budget_s = budget_s
-        self._pending = 0.0
-        self._ended = False  # interrupted for good: no plan runs any more
-        self._lock = threading.Lock()
-
-    def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
-        t = time.perf_counter()
-        timer = None
-        if self.budget_s:
-            timer = threading.Timer(self.budget_s, self._over_budget)
-            timer.daemon = True
-            timer.start()
-        try:
-            return self.inner.plan(state, rng)
-        finally:
-            if timer is not None:
-                timer.cancel()
-            with self._lock:
-                if not self._ended:
-                    self.inner.clear_interrupt()  # the budget applies to one plan
-            self._pending += time.perf_counter() - t
-
-    def _over_budget(self) -> None:
-        log.info("plan over its time budget: taking its best path so far")
-        self.inner.interrupt()
-
-    def interrupt(self) -> None:
-        with self._lock:
-            self._ended = True
-            self.inner.interrupt()
-
-    def take(self) -> float:
-        v, self._pending = self._pending, 0.0
-        return v
-
-
-@dataclass
-class Job:
-    query: zenoh.Query
-    request: RecognizeRequest
-    session_id: str
-    seed: int
-    arrived: float  # monotonic
-    budget: float | None  # the caller's timeout, from the selector
-
-
-@dataclass
-class _Running:
-    job: Job
-    cancel: threading.Event
-    interlock: _Interlock
-    started: float  # wall clock
-    move: int = 0
-    policy: Policy | None = None  # interrupted by cancel / e-stop / shutdown
-    place_s: float = 0.0  # for the log
-    session_s: float = 0.0
 
 
 def _probability(p: float) -> float:
@@ -225,31 +98,6 @@ def _parse(query: zenoh.Query, request_type: type[Message]) -> Any:
     return decode(data, request_type)
 
 
-# Local paths in texts sent to clients, replaced by placeholders (the log keeps them): a
-# client has no business knowing the robot PC's directories (issue 16, finding 10).
-_REDACT: list[tuple[str, str]] = []
-
-
-def set_redactions(data: Path | None) -> None:
-    """Hide `data` (as "<data>") and the home directory (as "~") in replies."""
-    pairs = []
-    if data is not None:
-        pairs.append((str(Path(data).resolve()), "<data>"))
-        pairs.append((str(data), "<data>"))
-    home = str(Path.home())
-    if home not in ("/", ""):
-        pairs.append((home, "~"))
-    _REDACT[:] = sorted(set(pairs), key=lambda p: -len(p[0]))  # longest first
-
-
-def redact(text: str | None) -> str | None:
-    if not text:
-        return text
-    for path, mark in _REDACT:
-        text = text.replace(path, mark)
-    return text
-
-
 def _reply_error(query: zenoh.Query, exc: BaseException) -> None:
     try:
         env = Reply.failure(exc)
@@ -257,110 +105,6 @@ def _reply_error(query: zenoh.Query, exc: BaseException) -> None:
         query.reply_err(encode(env), encoding=JSON)
     except Exception:
         log.debug("cannot send an error reply", exc_info=True)
-
-
-@dataclass
-class ServiceLinks:
-    """What the service reaches the robot and its clients through. Over Zenoh (`zenoh_links`)
-    in the daemon; in memory (`local_links`) in tests, so the admission, queue, cancel and
-    e-stop logic runs without Zenoh or subprocesses."""
-
-    hand: Hand
-    arm: Any  # WristMotion (move_to) with stop, clear_stop, estop
-    place: Any = None  # (object, seed) -> SimPlaceResult; None: a real robot
-    alive: Any = None  # snapshot() / since(node): the nodes' liveliness; None: always alive
-    publish: Any = None  # bytes -> None: a progress sample
-    # (session_id, on_gone) -> handle to undeclare, or None: the requester holds no token
-    watch_requester: Any = None
-    closers: list = field(default_factory=list)
-
-
-def zenoh_links(session: zenoh.Session, robot: str, mode: str, svc: Any) -> ServiceLinks:
-    """The devices through their Zenoh nodes, progress on `progress`, requesters' tokens."""
-    keys = Keys(robot)
-    timeouts = {"timeout": svc.node_timeout_s, "motion_timeout": svc.motion_timeout_s}
-    alive = AliveNodes(session, robot)
-    hand = RemoteHand(session, robot, **timeouts)
-    arm = RemoteArm(session, robot, **timeouts)
-    sim = RemotePlace(session, robot, svc.motion_timeout_s) if mode == "sim" else None
-    publisher = session.declare_publisher(keys.progress, encoding=JSON)
-
-    def watch(sid: str, on_gone: Any) -> Any:
-        try:
-            key = keys.requester(sid)
-        except ActiveTouchError:
-            return None  # an id that is no key chunk cannot have a token
-        if not tokens_left(session, key, timeout=REQUESTER_CHECK_S):
-            return None
-
-        def confirm() -> None:
-            if not tokens_left(session, key):
-                on_gone()
-
-        check = Coalesced(confirm, "activetouch-requester")
-
-        def on_sample(sample: zenoh.Sample) -> None:
-            if sample.kind == zenoh.SampleKind.DELETE:
-                check.request()  # confirm off Zenoh's thread: a spoofed drop changes nothing
-
-        return session.liveliness().declare_subscriber(key, direct(on_sample))
-
-    return ServiceLinks(
-        hand=hand,
-        arm=arm,
-        place=sim.place if sim is not None else None,
-        alive=alive,
-        publish=publisher.put,
-        watch_requester=watch,
-        closers=[
-            alive.close,
-            hand.close,
-            arm.close,
-            *([sim.close] if sim else []),
-            lambda: undeclare_quietly(publisher),
-        ],
-    )
-
-
-class _LocalArm(WristMotion):
-    """A device's wrist motion plus its arm's stops, as the service uses them."""
-
-    def __init__(self, devices: Any) -> None:
-        self.devices = devices
-
-    def move_to(self, pose: Pose) -> None:
-        self.devices.wrist.set_placement(self.devices.placement())
-        self.devices.wrist.move_to(pose)
-
-    @property  # type: ignore[override]
-    def robot_seconds(self) -> float:
-        return self.devices.wrist.robot_seconds
-
-    @property  # type: ignore[override]
-    def planning_seconds(self) -> float:
-        return self.devices.wrist.planning_seconds
-
-    def stop(self) -> None:
-        self.devices.arm.stop()
-
-    def estop(self) -> None:
-        self.devices.arm.estop()
-
-    def clear_stop(self) -> None:
-        self.devices.arm.clear_stop()
-
-
-def local_links(devices: Any) -> ServiceLinks:
-    """The devices of `make_devices` called directly (no Zenoh): for tests and tools."""
-    place = None
-    if devices.simulated and devices.ctx.place is not None:
-
-        def place(obj: str, seed: int | None) -> Any:
-            from activetouch.transport.messages import SimPlaceRequest
-
-            return devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
-
-    return ServiceLinks(hand=devices.hand, arm=_LocalArm(devices), place=place)
 
 
 class RecognitionService:
@@ -408,7 +152,7 @@ class RecognitionService:
             log.warning("no model", extra={"model": str(model_dir), "error": str(e)})
         self._cv = threading.Condition()
         self._pending: deque[Job] = deque()
-        self._running: _Running | None = None
+        self._running: Running | None = None
         self._closing = False
         self._control_q: queue.SimpleQueue = queue.SimpleQueue()
         self._estop_q: queue.SimpleQueue = queue.SimpleQueue()
@@ -705,14 +449,14 @@ class RecognitionService:
                 if self._closing:
                     return
                 job = self._pending.popleft()
-                running = _Running(job, threading.Event(), _Interlock(), time.time())
+                running = Running(job, threading.Event(), Interlock(), time.time())
                 self._running = running
             try:
                 self._serve(running)
             finally:
                 self._finish(running)
 
-    def _serve(self, running: _Running) -> None:
+    def _serve(self, running: Running) -> None:
         job = running.job
         with job.query as query:
             result: RecognizeResult | None = None
@@ -772,7 +516,7 @@ class RecognitionService:
                 )
             _reply_error(query, error)
 
-    def _watch_requester(self, running: _Running) -> Any:
+    def _watch_requester(self, running: Running) -> Any:
         """Cancel `running` when its requester goes away (its client closed or was killed):
         the client holds the liveliness token ``requests/<session_id>`` while it waits. A
         request without one (a plain Zenoh client, or ``recognize --detach``) runs detached.
@@ -794,13 +538,13 @@ class RecognitionService:
             )
         return handle
 
-    def _finish(self, running: _Running) -> None:
+    def _finish(self, running: Running) -> None:
         with self._cv:
             if self._running is running:
                 self._running = None
                 self._cv.notify_all()
 
-    def _recognize(self, running: _Running) -> RecognizeResult:
+    def _recognize(self, running: Running) -> RecognizeResult:
         from activetouch.session.loop import Progress as SessionProgress
         from activetouch.session.loop import RecognitionSession, belief_table_of
 
@@ -834,7 +578,7 @@ class RecognitionService:
             horizon=req.horizon or cfg.planner.horizon,
             simulations=req.simulations or cfg.planner.simulations,
         )
-        policy = _TimedPolicy(
+        policy = TimedPolicy(
             make_policy(
                 req.policy,
                 planner_cfg,
@@ -872,8 +616,8 @@ class RecognitionService:
                     log.warning("publishing progress failed", extra={"error": str(e)})
 
         session = RecognitionSession(
-            _GuardedHand(self.hand, running.interlock),
-            _GuardedWrist(self.arm, running.interlock),
+            GuardedHand(self.hand, running.interlock),
+            GuardedWrist(self.arm, running.interlock),
             model,
             policy,
             session_cfg,
@@ -936,7 +680,7 @@ class RecognitionService:
                         log.exception("estop failed")
                     _reply_error(query, e)
 
-    def _abort_all(self, reason: str) -> _Running | None:
+    def _abort_all(self, reason: str) -> Running | None:
         """Trip the running recognition's interlock and fail every queued one."""
         with self._cv:
             cur = self._running

@@ -12,7 +12,8 @@ import msgspec
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.daemon.recognition_service import RecognitionService, local_links
+from activetouch.daemon.links import local_links
+from activetouch.daemon.recognition_service import RecognitionService
 from activetouch.devices import make_devices
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import RecognizeRequest
