@@ -30,14 +30,14 @@ if TYPE_CHECKING:
 
 HAND_TYPES: dict[str, str] = {
     "twin": "activetouch.sim.devices:TwinHandConfig",
-    "fake": "activetouch.testing:FakeHandConfig",
+    "fake": "activetouch.fakes.replay:FakeHandConfig",
     "reflex-takktile": "activetouch.drivers.reflex.takktile:ReflexTakktileConfig",
     "reflex-sf": "activetouch.drivers.reflex.sf:ReflexSFConfig",
 }
 ARM_TYPES: dict[str, str] = {
     "twin-floating": "activetouch.sim.devices:TwinFloatingArmConfig",
     "twin-baxter": "activetouch.sim.baxter:TwinBaxterArmConfig",
-    "fake": "activetouch.testing:FakeArmConfig",
+    "fake": "activetouch.fakes.replay:FakeArmConfig",
     "baxter": "activetouch.drivers.baxter.arm:BaxterArmConfig",
 }
 DEFAULT_HAND = "twin"

@@ -1,7 +1,9 @@
-"""A small trained model on three builtin objects, shared by the service tests (built once)."""
+"""Shared fixtures: loopback Zenoh sessions (a listening node side and a client of it), and a
+small trained model on three builtin objects, shared by the service tests (built once)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,8 @@ from activetouch.config import Config, load_config
 from activetouch.model import load_model
 from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.training import collect, fit_and_save
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from tests.loopback import loopback_endpoint
 
 SMALL_OBJECTS = ["cup", "sphere", "bottle"]
 
@@ -46,12 +50,11 @@ def start_fake_daemon(trained_home: Path):
     devices (no physics), on a free loopback port; closed at the end of the test."""
     from activetouch.cli.commands.serve import resolve_mode
     from activetouch.daemon.process import Daemon, DaemonOptions
-    from activetouch.transport.zenoh_session import free_tcp_port
 
     started: list = []
 
     def start(overrides: list[str] = ()):  # type: ignore[assignment]
-        ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+        ep = loopback_endpoint()
         cfg = load_config(
             None,
             [
@@ -77,3 +80,20 @@ def start_fake_daemon(trained_home: Path):
     yield start
     for d in started:
         d.close()
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return loopback_endpoint()
+
+
+@pytest.fixture
+def node_session(endpoint: str) -> Iterator[ZenohSession]:
+    with ZenohSession(ZenohSettings(listen=(endpoint,))) as zs:
+        yield zs
+
+
+@pytest.fixture
+def client_session(endpoint: str, node_session: ZenohSession) -> Iterator[ZenohSession]:
+    with ZenohSession(ZenohSettings.client(endpoint)) as zs:
+        yield zs

@@ -16,9 +16,10 @@ from activetouch.config import load_config
 from activetouch.device_types import HAND_TYPES
 from activetouch.devices import make_devices
 from activetouch.errors import ConfigError, StoppedError, UnreachableError
+from activetouch.fakes.memory_arm import MemoryArm
+from activetouch.fakes.replay import FakeHand
 from activetouch.interfaces import JointTrajectory, Pose
 from activetouch.planning.motion.floating import WRIST_JOINTS
-from activetouch.testing import FakeArm, FakeHand
 
 FACES_DOWN = [1.0, 0.0, 0.0, 0.0]
 
@@ -64,7 +65,7 @@ def test_fake_arm_checks_limits_before_moving_and_keeps_a_stop() -> None:
     cfg = load_config(None, ["hand.type=fake", "arm.type=fake"])
     devices = make_devices(cfg)
     arm = devices.arm
-    assert isinstance(arm, FakeArm) and isinstance(devices.hand, FakeHand)
+    assert isinstance(arm, MemoryArm) and isinstance(devices.hand, FakeHand)
     q0 = arm.joint_state().position
     far = q0.copy()
     far[0] = 1e308

@@ -23,6 +23,7 @@ import numpy as np
 
 from activetouch.config import GridConfig
 from activetouch.errors import UnreachableError
+from activetouch.fakes.memory_arm import MemoryArm
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.planning.grid import shared_grid
 from activetouch.planning.motion.baxter import (
@@ -33,7 +34,6 @@ from activetouch.planning.motion.baxter import (
 )
 from activetouch.planning.motion.collision import CollisionScene
 from activetouch.planning.motion.ik import IKSolver, SeedTable
-from activetouch.planning.motion.memory_arm import MemoryArm
 from activetouch.planning.motion.robot import load_arm
 from activetouch.planning.motion.timing import rest_to_rest
 

@@ -15,7 +15,8 @@ from activetouch.daemon.calibration_node import (
 )
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import Reply, decode, encode
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from tests.loopback import loopback_endpoint
 
 ROBOT = "calbot"
 
@@ -36,7 +37,7 @@ def twin_devices(tmp_path_factory) -> Iterator:
 
 @pytest.fixture
 def served(twin_devices) -> Iterator[ZenohSession]:
-    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    ep = loopback_endpoint()
     with ZenohSession(ZenohSettings(listen=(ep,))) as node_zs:
         node_zs.closing(CalibrationNode(twin_devices, node_zs.session, ROBOT))
         with ZenohSession(ZenohSettings.client(ep)) as client:

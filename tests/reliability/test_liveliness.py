@@ -8,14 +8,15 @@ import time
 from activetouch.daemon.liveliness import AliveNodes
 from activetouch.daemon.nodes import HandNode
 from activetouch.daemon.remote import RemoteHand
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
-from tests.service.test_nodes import FakeHand
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from tests.doubles import RecordingHand
+from tests.loopback import loopback_endpoint
 
 ROBOT = "spoofbot"
 
 
 def test_a_spoofed_token_drop_changes_nothing_and_a_real_one_is_seen() -> None:
-    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    ep = loopback_endpoint()
     # As `serve` runs by default: the nodes and the daemon share one session (that is where a
     # dropped remote token on the same key is reported as a DELETE); the attacker is a client.
     with (
@@ -23,7 +24,7 @@ def test_a_spoofed_token_drop_changes_nothing_and_a_real_one_is_seen() -> None:
         ZenohSession(ZenohSettings.client(ep)) as attacker,
     ):
         daemon_zs = node_zs
-        node = HandNode(FakeHand(), node_zs.session, ROBOT, state_hz=0)
+        node = HandNode(RecordingHand(), node_zs.session, ROBOT, state_hz=0)
         hand = daemon_zs.closing(RemoteHand(daemon_zs.session, ROBOT, timeout=3.0))
         alive = daemon_zs.closing(AliveNodes(daemon_zs.session, ROBOT))
         hand.connect()

@@ -14,14 +14,15 @@ from activetouch.daemon.remote import RemoteHand
 from activetouch.errors import NodeUnavailableError
 from activetouch.transport.keys import DAEMON_NODE, HAND_NODE, Keys
 from activetouch.transport.messages import RecognizeRequest
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from tests.loopback import loopback_endpoint
 
 ROBOT = "silent"
 
 
 @pytest.fixture
 def sessions() -> Iterator[tuple[ZenohSession, ZenohSession]]:
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"  # loopback, scouting off
+    endpoint = loopback_endpoint()  # loopback, scouting off
     with (
         ZenohSession(ZenohSettings(listen=(endpoint,))) as served,
         ZenohSession(ZenohSettings.client(endpoint)) as client,

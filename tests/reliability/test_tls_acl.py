@@ -30,7 +30,8 @@ from activetouch.daemon.client import open_client
 from activetouch.errors import NodeUnavailableError
 from activetouch.transport.keys import DAEMON_NODE, HAND_NODE, Keys
 from activetouch.transport.messages import RecognizeRequest
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from tests.loopback import loopback_endpoint
 from tests.service.test_daemon import START_TIMEOUT, DaemonProcess
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -210,7 +211,7 @@ def fake_daemons(pki: Path) -> Iterator[dict[str, tuple[FakeDaemon, str]]]:
     sessions = []
     try:
         for name, extra in (("acl", {}), ("no-acl", {"access_control/enabled": False})):
-            endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+            endpoint = loopback_endpoint("tls")
             zs = _session(fill(pki, "daemon"), listen=endpoint, **extra)
             sessions.append(zs)
             out[name] = (FakeDaemon(zs), endpoint)
@@ -298,7 +299,7 @@ def test_control_without_access_control_the_probes_see_everything(pki, fake_daem
 def tls_daemon(
     pki: Path, trained_home: Path, tmp_path_factory: pytest.TempPathFactory
 ) -> Iterator[str]:
-    endpoint = f"tls/127.0.0.1:{free_tcp_port()}"
+    endpoint = loopback_endpoint("tls")
     d = DaemonProcess(
         [
             "--sim", "--data", str(trained_home), "--robot", ROBOT, "--listen", endpoint,

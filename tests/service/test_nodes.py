@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -21,16 +20,10 @@ from activetouch.errors import (
 )
 from activetouch.interfaces import (
     N_SENSORS,
-    Arm,
-    Grasp,
-    Hand,
     HandState,
-    JointLimits,
-    JointState,
     JointTrajectory,
     Pose,
 )
-from activetouch.planning.motion.base import WristMotion
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import (
     Empty,
@@ -47,168 +40,30 @@ from activetouch.transport.messages import (
 from activetouch.transport.zenoh_session import (
     ZenohSession,
     ZenohSettings,
-    free_tcp_port,
 )
+from tests.doubles import RecordingArm, RecordingHand
+from tests.loopback import loopback_endpoint
 
 ROBOT = "testbot"
 
 
-class FakeHand(Hand):
-    """Deterministic hand double: records calls; guarded_close touches sensors 0, 9, 18, 27."""
-
-    def __init__(self, close_delay: float = 0.0) -> None:
-        self.calls: list[tuple] = []
-        self.angle = 0.0
-        self.closed = False
-        self.close_delay = close_delay
-        self.fail_with: Exception | None = None
-
-    def connect(self) -> None:
-        self.calls.append(("connect",))
-
-    def disconnect(self) -> None:
-        self.calls.append(("disconnect",))
-
-    def open(self) -> None:
-        self.calls.append(("open",))
-        self.closed = False
-
-    def preshape(self, angle: float) -> None:
-        self.calls.append(("preshape", angle))
-        if not 0.0 <= angle <= 1.6:
-            raise ValueError(f"preshape {angle} rad outside 0..1.6")
-        self.angle = angle
-
-    def guarded_close(self) -> Grasp:
-        self.calls.append(("guarded_close",))
-        if self.fail_with is not None:
-            raise self.fail_with
-        if self.close_delay:
-            time.sleep(self.close_delay)
-        self.closed = True
-        ids = np.array([0, 9, 18, 27])
-        return Grasp(
-            sensor_ids=ids,
-            xyz=np.column_stack([ids * 0.001, ids * 0.002, ids * 0.003]),
-            pressures=ids * 1.5 + 1.0,
-            finger_angles=np.array([1.0, 1.1, 1.2]),
-            preshape=self.angle,
-        )
-
-    def stop(self) -> None:
-        self.calls.append(("stop",))
-
-    def clear_stop(self) -> None:
-        self.calls.append(("clear_stop",))
-
-    def state(self) -> HandState:
-        contact = np.zeros(N_SENSORS, dtype=bool)
-        if self.closed:
-            contact[[0, 9, 18, 27]] = True
-        return HandState(
-            pressures=np.arange(N_SENSORS, dtype=float) * contact,
-            contact=contact,
-            finger_angles=np.array([1.0, 1.1, 1.2]) if self.closed else np.zeros(3),
-            preshape=self.angle,
-            stamp=time.monotonic(),
-        )
-
-
-class FakeArm(Arm, WristMotion):
-    """Arm double, and its own wrist motion (recorded as "move_wrist"): poses with x > 1 m are
-    unreachable; execute can be stopped."""
-
-    NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
-    joint_names = NAMES
-    limits = JointLimits(np.full(6, -10.0), np.full(6, 10.0), np.ones(6), np.ones(6))
-
-    def __init__(self) -> None:
-        self.calls: list[tuple] = []
-        self.q = np.zeros(6)
-        self.stop_event = threading.Event()
-        self.executing = threading.Event()
-
-    def connect(self) -> None:
-        self.calls.append(("connect",))
-
-    def disconnect(self) -> None:
-        self.calls.append(("disconnect",))
-
-    def joint_state(self) -> JointState:
-        return JointState(self.NAMES, self.q.copy(), np.zeros(6), time.monotonic())
-
-    def execute(self, trajectory: JointTrajectory) -> None:
-        self.calls.append(("execute", trajectory))
-        self.stop_event.clear()
-        self.executing.set()
-        try:
-            t0 = time.monotonic()
-            # Follow the timing (scaled down 10x) so that stop() can interrupt a real motion.
-            while time.monotonic() - t0 < float(trajectory.times[-1]) / 10:
-                if self.stop_event.wait(0.005):
-                    raise DataError("trajectory interrupted by stop")
-            self.q = np.asarray(trajectory.positions[-1], dtype=float).copy()
-        finally:
-            self.executing.clear()
-
-    def move_to(self, pose: Pose) -> None:
-        self.calls.append(("move_wrist", pose))
-        if pose.xyz[0] > 1.0:
-            raise UnreachableError(f"wrist pose at x={pose.xyz[0]:.2f} m is out of reach")
-        self.q[:3] = pose.xyz
-
-    def stop(self) -> None:
-        self.calls.append(("stop",))
-        self.stop_event.set()
-
-    def clear_stop(self) -> None:
-        self.calls.append(("clear_stop",))
-
-    def estop(self) -> None:
-        self.calls.append(("estop",))
-        self.stop_event.set()
-
-    def enable(self) -> None:
-        self.calls.append(("enable",))
-
-    def disable(self) -> None:
-        self.calls.append(("disable",))
+@pytest.fixture
+def hand() -> RecordingHand:
+    return RecordingHand()
 
 
 @pytest.fixture
-def endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
+def arm() -> RecordingArm:
+    return RecordingArm()
 
 
 @pytest.fixture
-def node_session(endpoint: str) -> Iterator[ZenohSession]:
-    with ZenohSession(ZenohSettings(listen=(endpoint,))) as zs:
-        yield zs
-
-
-@pytest.fixture
-def client_session(endpoint: str, node_session: ZenohSession) -> Iterator[ZenohSession]:
-    with ZenohSession(ZenohSettings.client(endpoint)) as zs:
-        yield zs
-
-
-@pytest.fixture
-def hand() -> FakeHand:
-    return FakeHand()
-
-
-@pytest.fixture
-def arm() -> FakeArm:
-    return FakeArm()
-
-
-@pytest.fixture
-def hand_node(hand: FakeHand, node_session: ZenohSession) -> HandNode:
+def hand_node(hand: RecordingHand, node_session: ZenohSession) -> HandNode:
     return node_session.closing(HandNode(hand, node_session.session, ROBOT, state_hz=50.0))
 
 
 @pytest.fixture
-def arm_node(arm: FakeArm, node_session: ZenohSession) -> ArmNode:
+def arm_node(arm: RecordingArm, node_session: ZenohSession) -> ArmNode:
     return node_session.closing(ArmNode(arm, node_session.session, ROBOT, wrist=arm, state_hz=50.0))
 
 
@@ -226,11 +81,11 @@ def remote_arm(arm_node: ArmNode, client_session: ZenohSession) -> RemoteArm:
     return ra
 
 
-def test_remote_hand_round_trip(remote_hand: RemoteHand, hand: FakeHand) -> None:
+def test_remote_hand_round_trip(remote_hand: RemoteHand, hand: RecordingHand) -> None:
     remote_hand.preshape(0.8)
     remote_hand.open()
     grasp = remote_hand.guarded_close()
-    expected = FakeHand()
+    expected = RecordingHand()
     expected.angle = 0.8
     want = expected.guarded_close()
     np.testing.assert_array_equal(grasp.sensor_ids, want.sensor_ids)
@@ -245,14 +100,14 @@ def test_remote_hand_round_trip(remote_hand: RemoteHand, hand: FakeHand) -> None
     assert hand.calls[0] == ("preshape", 0.8)
 
 
-def test_remote_arm_round_trip(remote_arm: RemoteArm, arm: FakeArm) -> None:
+def test_remote_arm_round_trip(remote_arm: RemoteArm, arm: RecordingArm) -> None:
     pose = Pose(np.array([0.1, -0.2, 0.3]), np.array([0.0, 0.0, 0.0, 2.0]))
     remote_arm.move_wrist(pose)
     ((name, got),) = arm.calls
     assert name == "move_wrist"
     np.testing.assert_allclose(got.as_array(), pose.as_array())
     traj = JointTrajectory(
-        names=FakeArm.NAMES,
+        names=RecordingArm.NAMES,
         times=np.array([0.0, 0.1, 0.2]),
         positions=np.tile(np.arange(6.0), (3, 1)) * np.array([[0.0], [0.5], [1.0]]),
         meta={"planner": "test", "n": np.int64(3)},
@@ -262,7 +117,7 @@ def test_remote_arm_round_trip(remote_arm: RemoteArm, arm: FakeArm) -> None:
     np.testing.assert_allclose(sent.positions, traj.positions)
     assert sent.meta == {"planner": "test", "n": 3}
     js = remote_arm.joint_state()
-    assert js.names == FakeArm.NAMES
+    assert js.names == RecordingArm.NAMES
     np.testing.assert_allclose(js.position, np.arange(6.0))
 
 
@@ -273,7 +128,7 @@ def test_unreachable_crosses_the_wire_as_itself(remote_arm: RemoteArm) -> None:
     remote_arm.move_wrist(Pose(np.array([0.5, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0])))
 
 
-def test_device_errors_keep_their_type(remote_hand: RemoteHand, hand: FakeHand) -> None:
+def test_device_errors_keep_their_type(remote_hand: RemoteHand, hand: RecordingHand) -> None:
     with pytest.raises(ValueError, match=r"outside 0\.\.1\.6"):
         remote_hand.preshape(2.5)
     hand.fail_with = DataError("tactile board sent a truncated packet")
@@ -295,7 +150,7 @@ def test_state_is_published(hand_node: HandNode, arm_node: ArmNode, client_sessi
     first = hs.wait(timeout=5.0)
     second = hs.wait(timeout=5.0)
     assert len(first.pressures) == N_SENSORS and second.stamp > first.stamp
-    assert js.wait(timeout=5.0).names == list(FakeArm.NAMES)
+    assert js.wait(timeout=5.0).names == list(RecordingArm.NAMES)
     assert hs.invalid == 0 and js.invalid == 0
 
 
@@ -348,8 +203,8 @@ def test_node_stopped_mid_session(remote_hand: RemoteHand, hand_node: HandNode) 
 
 
 def test_node_killed_during_a_command() -> None:
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    hand = FakeHand(close_delay=1.0)
+    endpoint = loopback_endpoint()
+    hand = RecordingHand(close_delay=1.0)
     with ZenohSession(ZenohSettings.client(endpoint)) as client:
         ns = ZenohSession(ZenohSettings(listen=(endpoint,)))
         try:
@@ -380,10 +235,10 @@ def test_node_killed_during_a_command() -> None:
     assert elapsed < 20.0  # well inside the motion timeout: the dropped token woke the call
 
 
-def test_stop_interrupts_execute(remote_arm: RemoteArm, arm: FakeArm, client_session) -> None:
+def test_stop_interrupts_execute(remote_arm: RemoteArm, arm: RecordingArm, client_session) -> None:
     other = client_session.closing(RemoteArm(client_session.session, ROBOT, timeout=3.0))
     long = JointTrajectory(
-        names=FakeArm.NAMES, times=np.array([0.0, 100.0]), positions=np.zeros((2, 6))
+        names=RecordingArm.NAMES, times=np.array([0.0, 100.0]), positions=np.zeros((2, 6))
     )
     errors: list[BaseException] = []
 
@@ -404,7 +259,7 @@ def test_stop_interrupts_execute(remote_arm: RemoteArm, arm: FakeArm, client_ses
 
 
 def test_expired_requests_are_not_executed(
-    hand: FakeHand, hand_node: HandNode, remote_hand: RemoteHand, client_session
+    hand: RecordingHand, hand_node: HandNode, remote_hand: RemoteHand, client_session
 ) -> None:
     hand.close_delay = 0.6
     session = client_session.session
@@ -491,15 +346,15 @@ def test_the_twin_served_over_zenoh_matches_in_process(node_session, client_sess
 EXIT_SCRIPT = """
 import sys
 sys.path.insert(0, {tests!r})
-from test_nodes import FakeArm, FakeHand
+from test_nodes import RecordingArm, RecordingHand
 from activetouch.daemon.nodes import ArmNode, HandNode
 from activetouch.daemon.remote import RemoteHand
 from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 ep = f"tcp/127.0.0.1:{{free_tcp_port()}}"
 node = ZenohSession(ZenohSettings(listen=(ep,)))
 client = ZenohSession(ZenohSettings.client(ep))
-HandNode(FakeHand(), node.session, "exitbot", state_hz=100)
-arm = FakeArm()
+HandNode(RecordingHand(), node.session, "exitbot", state_hz=100)
+arm = RecordingArm()
 ArmNode(arm, node.session, "exitbot", wrist=arm, state_hz=100)
 hand = RemoteHand(client.session, "exitbot")
 hand.connect()
@@ -536,7 +391,9 @@ def test_alive_nodes_tracks_tokens(node_session: ZenohSession, client_session, h
     assert arm_node.busy is None
 
 
-def test_arm_estop_enable_disable_reach_the_device(remote_arm: RemoteArm, arm: FakeArm) -> None:
+def test_arm_estop_enable_disable_reach_the_device(
+    remote_arm: RemoteArm, arm: RecordingArm
+) -> None:
     remote_arm.enable()
     remote_arm.disable()
     remote_arm.estop()
@@ -544,7 +401,7 @@ def test_arm_estop_enable_disable_reach_the_device(remote_arm: RemoteArm, arm: F
 
 
 def test_motion_stats_are_served_at_once_and_move_wrist_still_replies_null(
-    remote_arm: RemoteArm, arm: FakeArm, client_session
+    remote_arm: RemoteArm, arm: RecordingArm, client_session
 ) -> None:
     """``arm/motion_stats`` answers the node's wrist counters (RemoteArm.robot_seconds /
     planning_seconds), also while a motion runs; ``arm/move_wrist`` replies null as before."""
@@ -572,7 +429,7 @@ def test_motion_stats_are_served_at_once_and_move_wrist_still_replies_null(
     assert stats == MotionStats(robot_s=12.5, planning_s=0.25, moves=3)
 
     long = JointTrajectory(
-        names=FakeArm.NAMES, times=np.array([0.0, 100.0]), positions=np.zeros((2, 6))
+        names=RecordingArm.NAMES, times=np.array([0.0, 100.0]), positions=np.zeros((2, 6))
     )
     errors: list[BaseException] = []
 
@@ -597,7 +454,7 @@ def test_motion_stats_are_served_at_once_and_move_wrist_still_replies_null(
 
 
 def test_motion_stats_of_a_node_without_a_wrist_are_zero(
-    arm: FakeArm, node_session: ZenohSession, client_session
+    arm: RecordingArm, node_session: ZenohSession, client_session
 ) -> None:
     node_session.closing(ArmNode(arm, node_session.session, ROBOT, state_hz=0.0))
     ra = client_session.closing(RemoteArm(client_session.session, ROBOT, timeout=3.0))
@@ -606,7 +463,7 @@ def test_motion_stats_of_a_node_without_a_wrist_are_zero(
     assert (ra.robot_seconds, ra.planning_seconds) == (0.0, 0.0)
 
 
-class StreamingHand(FakeHand):
+class StreamingHand(RecordingHand):
     """A hand that reports readings as they arrive (as the ReFlex drivers do)."""
 
     def __init__(self) -> None:

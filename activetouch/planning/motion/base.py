@@ -9,7 +9,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from activetouch.config import WorkcellConfig
-from activetouch.interfaces import Pose
+from activetouch.errors import ActiveTouchError
+from activetouch.interfaces import JointTrajectory, Pose
 
 
 @dataclass(frozen=True)
@@ -76,3 +77,24 @@ class WristMotion(abc.ABC):
     def set_placement(self, placement: Placement) -> None:
         """Where the object now is (a twin placed it, or calibration measured it)."""
         self.placement = placement
+
+
+def trajectory_positions(trajectory: JointTrajectory, joints: tuple[str, ...]) -> np.ndarray:
+    """(n_points, len(joints)) positions of `trajectory` in the order of `joints` (it may name
+    them in any order); ActiveTouchError for other joints, mismatched shapes, NaN or times
+    going backwards."""
+    names = tuple(trajectory.names)
+    if sorted(names) != sorted(joints) or len(names) != len(joints):
+        raise ActiveTouchError(f"a trajectory needs the joints {', '.join(joints)}; got {names}")
+    pos = np.asarray(trajectory.positions, dtype=np.float64)
+    times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
+    if pos.ndim != 2 or pos.shape != (len(times), len(names)) or len(times) == 0:
+        raise ActiveTouchError(
+            f"trajectory positions of shape {pos.shape} do not match {len(times)} times "
+            f"x {len(names)} joints"
+        )
+    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(times)):
+        raise ActiveTouchError("trajectory holds NaN or infinite values")
+    if np.any(np.diff(times) < 0):
+        raise ActiveTouchError("trajectory times go backwards")
+    return pos[:, [names.index(n) for n in joints]]

@@ -15,7 +15,7 @@ from scipy.spatial.transform import Rotation
 from activetouch.config import WorkcellConfig
 from activetouch.errors import ActiveTouchError, UnreachableError
 from activetouch.interfaces import Arm, JointLimits, JointTrajectory, Pose
-from activetouch.planning.motion.base import Placement, WristMotion
+from activetouch.planning.motion.base import Placement, WristMotion, trajectory_positions
 
 WRIST_JOINTS = ("wrist_x", "wrist_y", "wrist_z", "wrist_roll", "wrist_pitch", "wrist_yaw")
 
@@ -51,26 +51,8 @@ def pose_to_wrist_joints(pose: Pose) -> np.ndarray:
 
 
 def wrist_trajectory_positions(trajectory: JointTrajectory) -> np.ndarray:
-    """(n_points, 6) positions of a floating-wrist trajectory in `WRIST_JOINTS` order;
-    ActiveTouchError for other joints, mismatched shapes, NaN or times going backwards."""
-    names = tuple(trajectory.names)
-    if sorted(names) != sorted(WRIST_JOINTS) or len(names) != len(WRIST_JOINTS):
-        raise ActiveTouchError(
-            f"a wrist trajectory needs the joints {', '.join(WRIST_JOINTS)}; got {names}"
-        )
-    pos = np.asarray(trajectory.positions, dtype=np.float64)
-    times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
-    if pos.ndim != 2 or pos.shape != (len(times), len(names)) or len(times) == 0:
-        raise ActiveTouchError(
-            f"trajectory positions of shape {pos.shape} do not match {len(times)} times "
-            f"x {len(names)} joints"
-        )
-    if not np.all(np.isfinite(pos)) or not np.all(np.isfinite(times)):
-        raise ActiveTouchError("trajectory holds NaN or infinite values")
-    if np.any(np.diff(times) < 0):
-        raise ActiveTouchError("trajectory times go backwards")
-    order = [names.index(n) for n in WRIST_JOINTS]
-    return pos[:, order]
+    """(n_points, 6) positions of a floating-wrist trajectory in `WRIST_JOINTS` order."""
+    return trajectory_positions(trajectory, WRIST_JOINTS)
 
 
 def wrap_angles(delta: np.ndarray) -> np.ndarray:

@@ -20,15 +20,16 @@ from activetouch.errors import (
     UnreachableError,
 )
 from activetouch.interfaces import JointTrajectory
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 from tests.drivers.baxter import handbuilt as hb
+from tests.loopback import loopback_endpoint
 
 LEFT = ros1.joint_names("left")
 
 
 @pytest.fixture
 def endpoint() -> str:
-    return f"tcp/127.0.0.1:{free_tcp_port()}"
+    return loopback_endpoint()
 
 
 @pytest.fixture

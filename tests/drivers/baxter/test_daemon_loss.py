@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from activetouch.emulators.baxter_bridge import BaxterEmulator, EmulatorSettings
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from tests.loopback import loopback_endpoint
 
 DRIVER = textwrap.dedent(
     """
@@ -30,7 +31,7 @@ DRIVER = textwrap.dedent(
 
 @pytest.mark.slow
 def test_killed_driver_leaves_the_arm_holding() -> None:
-    ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    ep = loopback_endpoint()
     with (
         ZenohSession(ZenohSettings(listen=(ep,))) as zs,
         BaxterEmulator(zs.session, EmulatorSettings(enabled=True)) as robot,

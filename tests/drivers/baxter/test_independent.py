@@ -16,8 +16,9 @@ from activetouch.daemon.remote import RemoteArm
 from activetouch.drivers.baxter import ros1
 from activetouch.drivers.baxter.arm import BaxterArm, BaxterArmConfig
 from activetouch.interfaces import JointTrajectory
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
+from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 from tests.drivers.baxter import handbuilt as hb
+from tests.loopback import loopback_endpoint
 
 ROBOT = "baxter-test"
 SIDE_NAMES = [f"right_{j}" for j in ("s0", "s1", "e0", "e1", "w0", "w1", "w2")]
@@ -72,8 +73,8 @@ class EchoRobot:
 
 @pytest.fixture
 def setup() -> Iterator[tuple[EchoRobot, RemoteArm]]:
-    bridge_ep = f"tcp/127.0.0.1:{free_tcp_port()}"
-    node_ep = f"tcp/127.0.0.1:{free_tcp_port()}"
+    bridge_ep = loopback_endpoint()
+    node_ep = loopback_endpoint()
     with (
         ZenohSession(ZenohSettings(listen=(bridge_ep,))) as bridge_side,
         ZenohSession(ZenohSettings(listen=(node_ep,))) as node_side,

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from activetouch.errors import StoppedError, UnreachableError
+from activetouch.fakes.memory_arm import MemoryArm
 from activetouch.interfaces import Pose
 from activetouch.planning.grid import look_at_quaternion
 from activetouch.planning.motion.baxter import (
@@ -13,7 +14,6 @@ from activetouch.planning.motion.baxter import (
     baxter_placement,
 )
 from activetouch.planning.motion.collision import CollisionScene
-from activetouch.planning.motion.memory_arm import MemoryArm
 from activetouch.planning.motion.robot import hand_pose
 
 EXTENTS = np.array([0.12, 0.084, 0.098])  # a mug's box

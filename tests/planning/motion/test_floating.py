@@ -7,6 +7,7 @@ import pytest
 
 from activetouch.config import WorkcellConfig
 from activetouch.errors import StoppedError, UnreachableError
+from activetouch.fakes.replay import fake_arm
 from activetouch.interfaces import Pose
 from activetouch.planning.motion.base import Placement, WristMotion
 from activetouch.planning.motion.floating import (
@@ -14,7 +15,6 @@ from activetouch.planning.motion.floating import (
     floating_limits,
     straight_trajectory,
 )
-from activetouch.testing import FakeArm
 
 UP = np.array([0.0, 0.0, 0.0, 1.0])
 
@@ -31,9 +31,9 @@ def test_wrist_motion_counters_default_to_zero() -> None:
 
 
 def test_robot_seconds_are_the_executed_trajectories_durations() -> None:
-    arm = FakeArm(floating_limits(WorkcellConfig()))
+    arm = fake_arm(floating_limits(WorkcellConfig()))
     wrist = FloatingWristMotion(arm, Placement(np.array([0.0, 0.0, 0.1])))
-    other = FloatingWristMotion(FakeArm(floating_limits(WorkcellConfig())))
+    other = FloatingWristMotion(fake_arm(floating_limits(WorkcellConfig())))
     expected = []
     for xyz in ([0.2, 0.0, 0.3], [0.0, -0.3, 0.2], [0.1, 0.1, 0.5]):
         pose = Pose(np.array(xyz), UP)

@@ -1,4 +1,4 @@
-"""In-memory fake devices: hand ``fake`` and arm ``fake`` (activetouch.devices), no physics.
+"""The ``fake`` hand and arm device types (activetouch.device_types): in memory, no physics.
 
 A whole CLI (serve, recognize, status) runs on them without PyBullet. They are also the worked
 example of a device type (docs/architecture.md, "Adding a device type").
@@ -22,7 +22,8 @@ import numpy as np
 
 from activetouch.device_types import ArmConfig, HandConfig
 from activetouch.devices import DeviceContext
-from activetouch.errors import ConfigError, DataError, UnreachableError
+from activetouch.errors import ConfigError, DataError
+from activetouch.fakes.memory_arm import MemoryArm
 from activetouch.interfaces import (
     N_FINGERS,
     N_SENSORS,
@@ -31,8 +32,6 @@ from activetouch.interfaces import (
     Hand,
     HandState,
     JointLimits,
-    JointState,
-    JointTrajectory,
     Pose,
     StopLatch,
 )
@@ -41,7 +40,6 @@ from activetouch.planning.motion.floating import (
     WRIST_JOINTS,
     floating_limits,
     wrist_joints_to_pose,
-    wrist_trajectory_positions,
 )
 
 if TYPE_CHECKING:
@@ -90,49 +88,10 @@ class FakeArmConfig(ArmConfig):
         return rig.arm
 
 
-class FakeArm(Arm):
-    def __init__(self, limits: JointLimits, time_scale: float = 0.0) -> None:
-        self._limits = limits
-        self.time_scale = time_scale
-        self._q = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-        self.stop_latch = StopLatch()
-        self.executed = 0  # trajectories run to their end
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return WRIST_JOINTS
-
-    @property
-    def limits(self) -> JointLimits:
-        return self._limits
-
-    def connect(self) -> None:
-        pass
-
-    def disconnect(self) -> None:
-        pass
-
-    def joint_state(self) -> JointState:
-        return JointState(WRIST_JOINTS, self._q.copy(), np.zeros(6), time.monotonic())
-
-    def execute(self, trajectory: JointTrajectory) -> None:
-        self.stop_latch.check("arm motion")
-        q = wrist_trajectory_positions(trajectory)
-        times = np.asarray(trajectory.times, dtype=np.float64).reshape(-1)
-        bad = self._limits.violations(WRIST_JOINTS, q)
-        if bad:
-            raise UnreachableError(f"trajectory outside the joint limits: {'; '.join(bad)}")
-        duration = float(times[-1] - times[0]) * self.time_scale
-        if duration > 0 and self.stop_latch.wait(duration):
-            self.stop_latch.check("arm motion")
-        self._q = q[-1].copy()
-        self.executed += 1
-
-    def stop(self) -> None:
-        self.stop_latch.set()
-
-    def clear_stop(self) -> None:
-        self.stop_latch.clear()
+def fake_arm(limits: JointLimits) -> MemoryArm:
+    """The fake arm: a floating wrist (six joints, the hand pose in the base frame) in memory,
+    starting 1 m above the base."""
+    return MemoryArm(WRIST_JOINTS, limits, np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0]))
 
 
 class FakeRig:
@@ -141,7 +100,7 @@ class FakeRig:
     def __init__(self, ctx: DeviceContext) -> None:
         self.ctx = ctx
         self.workcell = ctx.cfg.workcell
-        self.arm = FakeArm(floating_limits(self.workcell))
+        self.arm = fake_arm(floating_limits(self.workcell))
         self.placement = Placement(np.asarray(self.workcell.object_xyz, dtype=np.float64))
         self.object: ObjectGrasps | None = None
         self._dataset: Any = None
