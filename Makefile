@@ -18,16 +18,19 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check activetouch tests benchmarks
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q
 
 # While developing: everything but the tests marked slow (CI runs them all).
 test-fast: $(STAMP)
 	$(BIN)/ruff check activetouch tests benchmarks
+	$(BIN)/lint-imports
 	$(BIN)/python -m pytest -q -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check activetouch tests benchmarks
 	$(BIN)/ruff format --check activetouch tests benchmarks
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from activetouch.clock import SYSTEM_CLOCK, Clock
+
 N_FINGERS = 3
 SENSORS_PER_FINGER = 9
 N_FINGER_SENSORS = N_FINGERS * SENSORS_PER_FINGER  # 27
@@ -166,8 +168,9 @@ class StopLatch:
     """The stop flag every device keeps: set from any thread, checked by running commands,
     in force until cleared."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Clock = SYSTEM_CLOCK) -> None:
         self._event = threading.Event()
+        self.clock = clock
 
     def set(self) -> None:
         self._event.set()
@@ -186,8 +189,9 @@ class StopLatch:
             raise StoppedError(f"{what}: the device is stopped (clear the stop first)")
 
     def wait(self, timeout: float) -> bool:
-        """Sleep up to `timeout` s; True at once if the stop is (or becomes) set."""
-        return self._event.wait(timeout)
+        """Sleep up to `timeout` s (on the latch's clock); True at once if the stop is (or
+        becomes) set."""
+        return self.clock.wait(self._event, timeout)
 
 
 class Hand(abc.ABC):

@@ -33,7 +33,6 @@ import dataclasses
 import functools
 import json
 import logging
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +40,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from activetouch.clock import SYSTEM_CLOCK, Clock
 from activetouch.device_types import ArmConfig
 from activetouch.devices import DeviceContext
 from activetouch.errors import ActiveTouchError, ConfigError, MotionBlockedError, UnreachableError
@@ -299,6 +299,7 @@ class TwinBaxterArm(Arm):
         model: ArmModel,
         cfg: TwinBaxterArmConfig | None = None,
         shapes: ObjectShapes | None = None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         from activetouch.planning.motion.collision import CollisionScene
 
@@ -313,7 +314,8 @@ class TwinBaxterArm(Arm):
         self._limits = model.limits(self.cfg.motion.acceleration)
         self._data = model.model.createData()
         self._q = model.ready.copy()
-        self.stop_latch = StopLatch()
+        self.clock: Clock = clock
+        self.stop_latch = StopLatch(clock)
         self.samples_checked = 0
         self.world_checks = 0  # samples near the object, checked in the world too
         self.sync_hand()
@@ -334,7 +336,7 @@ class TwinBaxterArm(Arm):
 
     def joint_state(self) -> JointState:
         q = self._q
-        return JointState(self.joint_names, q.copy(), np.zeros(len(q)), time.monotonic())
+        return JointState(self.joint_names, q.copy(), np.zeros(len(q)), self.clock.monotonic())
 
     # ---- the hand in the world ----------------------------------------------------------
 
@@ -417,13 +419,13 @@ class TwinBaxterArm(Arm):
     def _follow(self, times: np.ndarray, q: np.ndarray) -> None:
         cfg = self.cfg
         step_m = cfg.motion.check_step_m
-        wall0 = time.monotonic()
+        wall0 = self.clock.monotonic()
         prev_q, prev_x = self._q, self.hand_xyz(self._q)
         done = float(times[0])  # trajectory time of the last free sample
         try:
             for t, qk in resample(times, q, cfg.sample_dt, cfg.motion.check_step_rad):
                 if cfg.time_scale > 0:
-                    due = wall0 + (t - float(times[0])) * cfg.time_scale - time.monotonic()
+                    due = wall0 + (t - float(times[0])) * cfg.time_scale - self.clock.monotonic()
                     if due > 0:
                         self.stop_latch.wait(due)  # a stop ends the wait at once
                 self.stop_latch.check("arm motion")

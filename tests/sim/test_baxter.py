@@ -8,16 +8,15 @@ import json
 import re
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from activetouch.clock import ManualClock
 from activetouch.config import WorkcellConfig, load_config
 from activetouch.errors import ConfigError, MotionBlockedError, StoppedError, UnreachableError
-from activetouch.interfaces import JointTrajectory, Pose
+from activetouch.interfaces import JointTrajectory, Pose, StopLatch
 
 ROOT = Path(__file__).resolve().parents[2]
 BAXTER_TOML = ROOT / "deploy" / "baxter-twin.toml"
@@ -158,14 +157,15 @@ def test_stop_is_latched_and_ends_a_running_trajectory_within_a_sample(twin, bax
         twin.execute(line(q0, q1, 2.0, twin.joint_names))
     np.testing.assert_array_equal(twin.joint_state().position, q0)
     twin.clear_stop()
-    twin.cfg.time_scale = 1.0  # real time: a 2 s trajectory takes 2 s
-    timer = threading.Timer(0.3, twin.stop)
-    t0 = time.monotonic()
-    timer.start()
+    # Real time on a manual clock: a 2 s trajectory takes 2 s of it, and the stop comes at 0.3 s
+    # of it whatever the machine's load.
+    clock = ManualClock()
+    twin.clock, twin.stop_latch = clock, StopLatch(clock)
+    twin.cfg.time_scale = 1.0
+    clock.call_at(0.3, twin.stop)
     with pytest.raises(StoppedError):
         twin.execute(line(q0, q1, 2.0, twin.joint_names))
-    took = time.monotonic() - t0
-    assert 0.25 < took < 0.6  # one sample is 10 ms of trajectory time
+    assert clock.now - 0.3 <= twin.cfg.sample_dt + 1e-9  # within one sample of the stop
     q_stop = twin.joint_state().position
     assert not np.allclose(q_stop, q0) and not np.allclose(q_stop, q1)
     with pytest.raises(StoppedError):  # still stopped
