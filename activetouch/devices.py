@@ -50,7 +50,7 @@ class DeviceContext:
         self._closers.append(fn)
 
     def add_place(self, place: Callable[[Any], Any], placement: Callable[[], Any]) -> None:
-        """`place(SimPlaceRequest) -> SimPlaceResult`: how a simulated robot puts an object on
+        """`place(object, seed) -> Placed`: how a simulated robot puts an object on
         its table (served as ``sim/place``); `placement()`: where the placed object now is."""
         if self.place is not None and self.place is not place:
             raise ConfigError(

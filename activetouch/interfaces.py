@@ -23,6 +23,7 @@ from __future__ import annotations
 import abc
 import threading
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -162,6 +163,19 @@ class JointLimits:
                     f"[{self.lower[j]:.4g}, {self.upper[j]:.4g}]"
                 )
         return out
+
+
+@dataclass(frozen=True)
+class Placed:
+    """What a simulated robot put on its table (`DeviceContext.add_place`)."""
+
+    object: str
+    extents: tuple[float, float, float]  # bounding-box size, metres
+
+
+def extents_of(values: Any) -> tuple[float, float, float]:
+    x, y, z = (float(v) for v in values)
+    return (x, y, z)
 
 
 class StopLatch:

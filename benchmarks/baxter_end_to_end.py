@@ -88,7 +88,6 @@ def run(
     from activetouch.model import load_model
     from activetouch.planning.policies import make_policy
     from activetouch.session.loop import RecognitionSession
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(BAXTER_TOML, [*VARIANTS[variant], *overrides])
     model = load_model(paths.default_model(Path(root)))
@@ -114,7 +113,7 @@ def run(
         wrist.move_to = recording_move_to  # type: ignore[method-assign]
         for seed in seeds:
             t0 = time.perf_counter()
-            devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
+            devices.ctx.place(obj, seed)
             placement = devices.placement()
             wrist.set_placement(placement)
             policy_obj = make_policy(

@@ -118,7 +118,6 @@ def run_driver(
     from activetouch.planning.policies import make_policy
     from activetouch.session.loop import RecognitionSession
     from activetouch.sim.devices import twin_rig
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(
         None,
@@ -135,7 +134,7 @@ def run_driver(
     try:
         rig = twin_rig(devices.ctx)  # the world the arm moves in and the emulator reads
         for seed in seeds:
-            devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
+            devices.ctx.place(obj, seed)
             devices.wrist.set_placement(devices.placement())
             policy_obj = make_policy(
                 policy, cfg.planner, model.observation, model.classifier.kernel()

@@ -84,12 +84,11 @@ def test_fake_arm_checks_limits_before_moving_and_keeps_a_stop() -> None:
 def test_fake_hand_replays_the_dataset_grasp_at_the_wrist_pose(trained_home: Path) -> None:
     from activetouch import paths
     from activetouch.recognition.dataset import Dataset
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(None, ["hand.type=fake", "arm.type=fake"])
     devices = make_devices(cfg, trained_home)
     assert devices.simulated and devices.ctx.place is not None
-    devices.ctx.place(SimPlaceRequest(object="cup"))
+    devices.ctx.place("cup")
     devices.wrist.set_placement(devices.placement())
     stored = Dataset.open(paths.default_dataset(trained_home)).read("cup")
     i = int(np.argmax([g.n_contacts for g in stored.grasps]))
@@ -154,7 +153,6 @@ def test_twin_rig_calls_its_after_place_hooks_once_the_object_stands(trained_hom
     """`TwinRig.after_place`: devices on the twin hook into `sim/place` (the Baxter twin homes
     its arm there) instead of replacing `ctx.place`; each hook sees the new object placed."""
     from activetouch.sim.devices import TWIN
-    from activetouch.transport.messages import SimPlaceRequest
 
     devices = make_devices(load_config(), trained_home)
     try:
@@ -162,10 +160,10 @@ def test_twin_rig_calls_its_after_place_hooks_once_the_object_stands(trained_hom
         assert devices.ctx.place == rig.place  # not wrapped by anybody
         seen: list[np.ndarray] = []
         rig.after_place.append(lambda: seen.append(rig.world.object_origin.copy()))
-        res = devices.ctx.place(SimPlaceRequest(object="cup", seed=0))
+        res = devices.ctx.place("cup", 0)
         top = devices.ctx.cfg.workcell.table_top_z
         assert len(seen) == 1 and seen[0][2] == pytest.approx(top + res.extents[2] / 2)
-        devices.ctx.place(SimPlaceRequest(object="sphere"))
+        devices.ctx.place("sphere")
         assert len(seen) == 2 and seen[1][2] != pytest.approx(seen[0][2])
     finally:
         devices.close()

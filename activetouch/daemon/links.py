@@ -30,7 +30,7 @@ class ServiceLinks:
 
     hand: Hand
     arm: Any  # WristMotion (move_to) with stop, clear_stop, estop
-    place: Any = None  # (object, seed) -> SimPlaceResult; None: a real robot
+    place: Any = None  # (object, seed) -> Placed / SimPlaceResult; None: a real robot
     alive: Any = None  # snapshot() / since(node): the nodes' liveliness; None: always alive
     publish: Any = None  # bytes -> None: a progress sample
     # (session_id, on_gone) -> handle to undeclare, or None: the requester holds no token
@@ -119,8 +119,6 @@ def local_links(devices: Any) -> ServiceLinks:
     if devices.simulated and devices.ctx.place is not None:
 
         def place(obj: str, seed: int | None) -> Any:
-            from activetouch.transport.messages import SimPlaceRequest
-
-            return devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
+            return devices.ctx.place(obj, seed)
 
     return ServiceLinks(hand=devices.hand, arm=LocalArm(devices), place=place)

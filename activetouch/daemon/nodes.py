@@ -35,6 +35,7 @@ from activetouch.interfaces import (
     Arm,
     Hand,
     HandState,
+    Placed,
 )
 from activetouch.planning.motion.base import Placement, WristMotion
 from activetouch.transport.keys import ARM_NODE, HAND_NODE, SIM_NODE, Keys
@@ -208,20 +209,26 @@ class ArmNode(ServedNode):
 
 class PlaceNode(ServedNode):
     """Simulated robots only: ``sim/place`` puts an object on the table via `place`
-    (`SimPlaceRequest` -> `SimPlaceResult`), e.g. the twin's or the fake's."""
+    (`SimPlaceRequest` -> `SimPlaceResult` on the wire; `place(object, seed) -> Placed`), e.g.
+    the twin's or the fake's."""
 
     node_name = SIM_NODE
 
     def __init__(
         self,
-        place: Callable[[SimPlaceRequest], SimPlaceResult],
+        place: Callable[[str, int | None], Placed],
         session: zenoh.Session,
         robot: str,
         *,
         lock: threading.Lock | None = None,
     ) -> None:
         super().__init__(session, robot, state_key=Keys(robot).sim_place, state_hz=0.0, lock=lock)
-        self._ops = {"place": Op(self.keys.sim_place, SimPlaceRequest, place)}
+
+        def served(req: SimPlaceRequest) -> SimPlaceResult:
+            placed = place(req.object, req.seed)
+            return SimPlaceResult(object=placed.object, extents=placed.extents)
+
+        self._ops = {"place": Op(self.keys.sim_place, SimPlaceRequest, served)}
         self._start()
 
 

@@ -32,8 +32,10 @@ from activetouch.interfaces import (
     Hand,
     HandState,
     JointLimits,
+    Placed,
     Pose,
     StopLatch,
+    extents_of,
 )
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.floating import (
@@ -44,7 +46,6 @@ from activetouch.planning.motion.floating import (
 
 if TYPE_CHECKING:
     from activetouch.recognition.dataset import ObjectGrasps
-    from activetouch.transport.messages import SimPlaceRequest, SimPlaceResult
 
 FAKE = "fake"
 
@@ -116,24 +117,24 @@ class FakeRig:
                 self._dataset = Dataset.open(where)
             return self._dataset
 
-    def place(self, req: SimPlaceRequest) -> SimPlaceResult:
-        from activetouch.transport.messages import SimPlaceResult
-
+    def place(self, obj: str, seed: int | None = None) -> Placed:
+        """Put `obj` on the fake table: its grasps in the dataset are what the hand replays
+        (`seed` is accepted for the twin's signature; the replay has no noise)."""
         hand_cfg = self.ctx.cfg.hand
         ds = self.dataset(getattr(hand_cfg, "dataset", ""))
-        if req.object not in ds.object_names():
+        if obj not in ds.object_names():
             raise DataError(
-                f"the fake hand has no grasps of {req.object!r} in {ds.path} "
+                f"the fake hand has no grasps of {obj!r} in {ds.path} "
                 f"(has: {', '.join(ds.object_names()) or 'none'})"
             )
-        extents = ds.attrs(req.object).get("extents")
+        extents = ds.attrs(obj).get("extents")
         if not (isinstance(extents, list) and len(extents) == 3):
-            raise DataError(f"{ds.path}: object {req.object!r} has no extents in its attrs")
-        self.object = ds.read(req.object)
+            raise DataError(f"{ds.path}: object {obj!r} has no extents in its attrs")
+        self.object = ds.read(obj)
         wc = self.workcell
         xyz = [wc.object_xyz[0], wc.object_xyz[1], wc.table_top_z + float(extents[2]) / 2]
         self.placement = Placement(np.array(xyz, dtype=np.float64))
-        return SimPlaceResult(object=req.object, extents=tuple(float(v) for v in extents))
+        return Placed(obj, extents_of(extents))
 
     def wrist_in_object(self) -> Pose:
         base = wrist_joints_to_pose(self.arm.joint_state().position)

@@ -145,7 +145,6 @@ def placed_devices(
     wrist told where it stands; closed on exit. ConfigError for devices that cannot place
     (real ones): `what` names the command for the message."""
     from activetouch.devices import make_devices
-    from activetouch.transport.messages import SimPlaceRequest
 
     devices = make_devices(cfg, data)
     try:
@@ -155,7 +154,7 @@ def placed_devices(
                 f"{object_name!r}: {what} in-process needs simulated devices (twin, fake); "
                 "for a real robot run `activetouch serve --hardware` and `recognize --connect`"
             )
-        devices.ctx.place(SimPlaceRequest(object=object_name, seed=seed))
+        devices.ctx.place(object_name, seed)
         placement = devices.placement()
         devices.wrist.set_placement(placement)
         yield devices, placement

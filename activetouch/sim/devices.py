@@ -27,14 +27,15 @@ from activetouch.interfaces import (
     Hand,
     HandWrapper,
     JointTrajectory,
+    Placed,
     Pose,
     StopLatch,
+    extents_of,
 )
 from activetouch.sim import PATHS
 
 if TYPE_CHECKING:
     from activetouch.config import Config
-    from activetouch.transport.messages import SimPlaceRequest, SimPlaceResult
 
 log = logging.getLogger(__name__)
 
@@ -100,17 +101,18 @@ class TwinRig:
         # freshly made twin): devices on this rig hook in here instead of wrapping `place`.
         self.after_place: list[Callable[[], None]] = []
 
-    def place(self, req: SimPlaceRequest) -> SimPlaceResult:
+    def place(self, obj: str, seed: int | None = None) -> Placed:
+        """Put library object `obj` on the table; restart the hand's noise from `seed` (None:
+        the configured one), so a recognition repeats exactly for a seed."""
         from activetouch.objects.library import ObjectLibrary
-        from activetouch.transport.messages import SimPlaceResult
 
-        spec = ObjectLibrary(self.library_root).get(req.object)  # DataError names the known
-        seed = self.hand.cfg.seed if req.seed is None else req.seed
-        reset_twin(self.world, self.hand, spec, seed)
+        spec = ObjectLibrary(self.library_root).get(obj)  # DataError names the known
+        noise_seed = self.hand.cfg.seed if seed is None else seed
+        reset_twin(self.world, self.hand, spec, noise_seed)
         for hook in self.after_place:
             hook()
-        log.info("object placed", extra={"object": spec.name, "seed": req.seed})
-        return SimPlaceResult(object=spec.name, extents=tuple(float(x) for x in spec.extents))
+        log.info("object placed", extra={"object": spec.name, "seed": seed})
+        return Placed(spec.name, extents_of(spec.extents))
 
     def placement(self) -> Any:
         from activetouch.planning.motion.base import Placement

@@ -72,7 +72,7 @@ def test_object_query_runs_the_procedure_on_the_devices(served, twin_devices, tm
     from activetouch.objects.library import ObjectLibrary
 
     ObjectLibrary.in_data_dir(twin_devices.ctx.data).get("sphere")
-    twin_devices.ctx.place(_place_request("sphere"))
+    twin_devices.ctx.place("sphere", 0)
     reply = ask(served, "object", CalibrateRequest(store=True, object="sphere"))
     assert reply.ok, reply.error
     res = reply.result
@@ -81,9 +81,3 @@ def test_object_query_runs_the_procedure_on_the_devices(served, twin_devices, tm
     assert np.hypot(*res.quality["correction_xy_mm"]) < 2.0
     assert res.quality["n_touches"] >= 6
     assert not twin_devices.lock.locked()
-
-
-def _place_request(name: str):
-    from activetouch.transport.messages import SimPlaceRequest
-
-    return SimPlaceRequest(object=name, seed=0)

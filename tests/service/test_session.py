@@ -219,11 +219,10 @@ def _session_on_fakes(home, model, hand_wrap, max_moves=3):
     from activetouch.config import load_config
     from activetouch.devices import make_devices
     from activetouch.planning.motion.base import workcell_placement
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(None, ["hand.type=fake", "arm.type=fake"])
     devices = make_devices(cfg, home)
-    devices.ctx.place(SimPlaceRequest(object="cup"))
+    devices.ctx.place("cup")
     devices.wrist.set_placement(devices.placement())
     hand = hand_wrap(devices.hand)
     hand.wrist = devices.wrist

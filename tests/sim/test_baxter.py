@@ -184,13 +184,12 @@ def test_recognition_on_the_twin_hand_and_the_baxter_twin(trained_home, small_mo
     from activetouch.planning.motion.robot import hand_pose
     from activetouch.planning.policies import make_policy
     from activetouch.session.loop import RecognitionSession
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(BAXTER_TOML, ["session.max_skips=200"])
     devices = make_devices(cfg, trained_home)
     try:
         assert devices.simulated and devices.ctx.place is not None
-        devices.ctx.place(SimPlaceRequest(object="cup", seed=0))
+        devices.ctx.place("cup", 0)
         devices.wrist.set_placement(devices.placement())
         placement = devices.placement()
         assert np.linalg.norm(placement.xyz[:2] - [0.6, 0.25]) < 1e-9
@@ -226,7 +225,6 @@ def test_place_homes_the_arm_through_the_rigs_after_place_hook(trained_home, bax
     from activetouch.devices import DeviceContext
     from activetouch.sim.baxter import BAXTER_MODEL
     from activetouch.sim.devices import TWIN
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = load_config(BAXTER_TOML)
     ctx = DeviceContext(cfg, trained_home)
@@ -239,7 +237,7 @@ def test_place_homes_the_arm_through_the_rigs_after_place_hook(trained_home, bax
         q = ready + 0.1
         arm.execute(line(ready, q, 1.0, arm.joint_names))
         assert np.abs(arm.joint_state().position - q).max() < 1e-9
-        ctx.place(SimPlaceRequest(object="cup", seed=0))
+        ctx.place("cup", 0)
         np.testing.assert_allclose(arm.joint_state().position, ready, atol=1e-12)
     finally:
         ctx.close()

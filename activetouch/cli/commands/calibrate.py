@@ -238,9 +238,7 @@ def run_object(cfg, root, device, args, console):
         if devices.simulated:
             if devices.ctx.place is None:
                 raise ActiveTouchError("calibrate object: this simulated robot places no object")
-            from activetouch.transport.messages import SimPlaceRequest
-
-            devices.ctx.place(SimPlaceRequest(object=spec.name, seed=cfg.sim.seed))
+            devices.ctx.place(spec.name, cfg.sim.seed)
             if injected is not None:
                 _misplace(devices, spec, injected)
         else:

@@ -172,12 +172,11 @@ def test_recognition_on_the_driver_against_the_twin_backed_emulator(devices, sma
     from activetouch.planning.motion.robot import hand_pose
     from activetouch.planning.policies import make_policy
     from activetouch.session.loop import RecognitionSession
-    from activetouch.transport.messages import SimPlaceRequest
 
     cfg = devices.ctx.cfg
     arm = devices.arm
     assert isinstance(arm, TwinEmulatedBaxterArm) and devices.simulated
-    devices.ctx.place(SimPlaceRequest(object="cup", seed=0))
+    devices.ctx.place("cup", 0)
     placement = devices.placement()
     devices.wrist.set_placement(placement)
     assert np.linalg.norm(placement.xyz[:2] - [0.6, 0.25]) < 1e-9
@@ -218,9 +217,8 @@ def test_a_contact_with_the_placed_object_is_unreachable_not_a_stop(devices) -> 
     from activetouch.interfaces import Pose
     from activetouch.planning.motion.ik import IKSolver
     from activetouch.planning.motion.robot import pose_to_se3
-    from activetouch.transport.messages import SimPlaceRequest
 
-    devices.ctx.place(SimPlaceRequest(object="cup", seed=0))  # the arm back at ready
+    devices.ctx.place("cup", 0)  # the arm back at ready
     arm = devices.arm
     model = arm.twin.model
     top = np.asarray(arm.twin.world.object_origin, dtype=np.float64)

@@ -38,7 +38,6 @@ def test_recognition_through_driver_agrees_with_twin(trained_home):
     from activetouch.session.loop import RecognitionSession
     from activetouch.sim.devices import twin_rig
     from activetouch.sim.twin import open_twin
-    from activetouch.transport.messages import SimPlaceRequest
 
     obj, seed = "sphere", 1
     model = load_model(paths.default_model(trained_home))
@@ -51,7 +50,7 @@ def test_recognition_through_driver_agrees_with_twin(trained_home):
         assert isinstance(hand, TwinEmulatedHand) and devices.simulated
         rig = twin_rig(devices.ctx)
         assert hand.fingers.world is rig.world  # the arm's world, not a copy
-        devices.ctx.place(SimPlaceRequest(object=obj, seed=seed))
+        devices.ctx.place(obj, seed)
         devices.wrist.set_placement(devices.placement())
         grasped = 0
         with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
