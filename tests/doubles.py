@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -32,6 +33,7 @@ class RecordingHand(Hand):
         self.closed = False
         self.close_delay = close_delay
         self.fail_with: Exception | None = None
+        self.before_close: Callable[[], None] | None = None  # runs inside guarded_close
 
     def connect(self) -> None:
         self.calls.append(("connect",))
@@ -53,6 +55,8 @@ class RecordingHand(Hand):
         self.calls.append(("guarded_close",))
         if self.fail_with is not None:
             raise self.fail_with
+        if self.before_close is not None:
+            self.before_close()
         if self.close_delay:
             time.sleep(self.close_delay)
         self.closed = True

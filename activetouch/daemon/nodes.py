@@ -27,6 +27,7 @@ from typing import Any
 
 import zenoh
 
+from activetouch.clock import SYSTEM_CLOCK, Clock
 from activetouch.daemon.serving import JSON, MAX_STREAM_HZ, Op, ServedNode
 from activetouch.errors import (
     ActiveTouchError,
@@ -75,6 +76,7 @@ class HandNode(ServedNode):
         *,
         state_hz: float = 20.0,
         lock: threading.Lock | None = None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         # A hand that reports each reading as it arrives (the ReFlex drivers: 40 Hz, and once
         # when its stream goes stale) is published from there, beside a running grasp;
@@ -86,6 +88,7 @@ class HandNode(ServedNode):
             state_key=Keys(robot).hand_state,
             state_hz=0.0 if streams else state_hz,
             lock=lock,
+            clock=clock,
         )
         self.hand = hand
         self._stream_pub: Any = None
@@ -152,9 +155,15 @@ class ArmNode(ServedNode):
         placement: Callable[[], Placement] | None = None,
         state_hz: float = 20.0,
         lock: threading.Lock | None = None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         super().__init__(
-            session, robot, state_key=Keys(robot).arm_joint_states, state_hz=state_hz, lock=lock
+            session,
+            robot,
+            state_key=Keys(robot).arm_joint_states,
+            state_hz=state_hz,
+            lock=lock,
+            clock=clock,
         )
         self.arm = arm
         self.wrist = wrist

@@ -9,13 +9,13 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import zenoh
 
+from activetouch.clock import SYSTEM_CLOCK, Clock
 from activetouch.errors import (
     ActiveTouchError,
     ConfigError,
@@ -98,11 +98,13 @@ class ServedNode:
         state_key: str,
         state_hz: float,
         lock: threading.Lock | None,
+        clock: Clock = SYSTEM_CLOCK,
     ) -> None:
         if not state_hz >= 0:
             raise ConfigError(f"state_hz must be >= 0, got {state_hz}")
         self.keys = Keys(robot)
         self.robot = robot
+        self.clock = clock  # when a query arrived and how long it waited, and the state timer
         self._session = session
         self._lock = lock if lock is not None else threading.Lock()
         self._period = 1.0 / state_hz if state_hz > 0 else None
@@ -159,7 +161,7 @@ class ServedNode:
     def _enqueuer(self, op: str, q: queue.SimpleQueue) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
             # Runs on a Zenoh thread: only hand the query over, never block or call Zenoh here.
-            q.put(Job(op, query, time.monotonic()))
+            q.put(Job(op, query, self.clock.monotonic()))
 
         return on_query
 
@@ -167,6 +169,10 @@ class ServedNode:
     def busy(self) -> str | None:
         """Name of the command being executed, if any."""
         return self._busy
+
+    def queued(self) -> int:
+        """Commands waiting behind the one being executed."""
+        return self._queue.qsize()
 
     def close(self, join_timeout: float = 2.0) -> None:
         """Drop the token, stop serving, stop the workers, undeclare. Idempotent."""
@@ -206,16 +212,16 @@ class ServedNode:
     # -- worker
     def _run(self, q: queue.SimpleQueue, publishes: bool) -> None:
         period = self._period if publishes else None
-        next_pub = time.monotonic()
+        next_pub = self.clock.monotonic()
         while True:
             timeout = None
             if period is not None and not self._closing.is_set():
-                now = time.monotonic()
+                now = self.clock.monotonic()
                 if now >= next_pub:
                     self._publish_state()
                     # Keep the rate without bursts of catch-up samples after a long command.
                     next_pub = max(next_pub + period, now)
-                timeout = max(0.0, next_pub - time.monotonic())
+                timeout = max(0.0, next_pub - self.clock.monotonic())
             try:
                 job = q.get(timeout=timeout)
             except queue.Empty:
@@ -259,7 +265,7 @@ class ServedNode:
                     raise NodeUnavailableError(
                         f"{self.node_name} node of robot {self.robot} is shutting down"
                     )
-                waited = time.monotonic() - job.arrived
+                waited = self.clock.monotonic() - job.arrived
                 budget = query_budget(query)
                 if budget is not None and waited > budget:
                     raise NodeUnavailableError(

@@ -8,6 +8,7 @@ import time
 import numpy as np
 import pytest
 
+from activetouch.clock import ManualClock
 from activetouch.daemon.liveliness import AliveNodes
 from activetouch.daemon.nodes import ArmNode, HandNode
 from activetouch.daemon.remote import Latest, RemoteArm, RemoteHand
@@ -258,20 +259,32 @@ def test_stop_interrupts_execute(remote_arm: RemoteArm, arm: RecordingArm, clien
     assert isinstance(err, DataError) and "interrupted" in str(err)
 
 
-def test_expired_requests_are_not_executed(
-    hand: RecordingHand, hand_node: HandNode, remote_hand: RemoteHand, client_session
-) -> None:
-    hand.close_delay = 0.6
+def test_expired_requests_are_not_executed(node_session: ZenohSession, client_session) -> None:
+    # The node's own clock decides how long a query waited: the guarded close takes 0.6 s of
+    # it (and no wall time), so the open queued behind it, whose caller waits 0.2 s, has
+    # expired when its turn comes, however loaded the machine.
+    clock = ManualClock()
+    hand = RecordingHand()
+    started, release = threading.Event(), threading.Event()
+
+    def slow_close() -> None:
+        started.set()
+        release.wait(10.0)  # hold the worker until the open is queued
+        clock.advance(0.6)
+
+    hand.before_close = slow_close
     session = client_session.session
     keys = Keys(ROBOT)
-    # Occupy the worker, then queue an open whose caller only waits 0.2 s.
-    first = session.get(keys.hand_guarded_close, timeout=5.0)
-    while hand_node.busy != "guarded_close":
-        time.sleep(0.01)
-    late = session.get(f"{keys.hand_open}?timeout=0.2", payload=encode(Empty()), timeout=5.0)
-    [r1] = list(first)
-    assert r1.ok is not None
-    [r2] = list(late)
+    with HandNode(hand, node_session.session, ROBOT, state_hz=0.0, clock=clock) as node:
+        first = session.get(keys.hand_guarded_close, timeout=10.0)
+        assert started.wait(10.0)
+        late = session.get(f"{keys.hand_open}?timeout=0.2", payload=encode(Empty()), timeout=10.0)
+        while node.queued() == 0:  # the open is in the queue, behind the close
+            time.sleep(0.005)
+        release.set()
+        [r1] = list(first)
+        assert r1.ok is not None
+        [r2] = list(late)
     reply = decode(r2.err.payload.to_bytes(), Reply[None])
     assert "not executed" in reply.error
     assert ("open",) not in hand.calls
