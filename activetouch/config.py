@@ -12,15 +12,29 @@ import logging
 import math
 import os
 import tomllib
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from activetouch.device_types import device_config
 from activetouch.errors import ConfigError
 from activetouch.settings import apply_section
 
 log = logging.getLogger(__name__)
+
+
+# Settings that take one of a few words: anything else is refused when the config is loaded.
+Classifier = Literal["svm", "nn_inner", "nn_intersection"]
+Belief = Literal["histogram", "grasp_likelihood"]
+Granularity = Literal["triangle", "grasp"]
+ActionFrame = Literal["relative", "absolute"]
+PolicyName = Literal["tree", "greedy", "random"]
+Eq4Sampling = Literal["renormalise", "per_class"]
+Objective = Literal["final", "anytime", "info_gain"]
+MovementCost = Literal["pose", "travel_time"]
+GridLayout = Literal["shared", "per_object"]
+Sensing = Literal["tactile", "stall"]
 
 
 @dataclass
@@ -32,7 +46,7 @@ class RecognitionConfig:
     min_side_m: float = 1e-4
     # ... or an angle smaller than this (collinear points).
     min_angle_deg: float = 1.0
-    classifier: str = "svm"  # svm | nn_inner | nn_intersection
+    classifier: Classifier = "svm"  # svm | nn_inner | nn_intersection
     # Partial-observation training samples per object (random subsets of its grasps).
     partial_samples_per_object: int = 200
     partial_min_grasps: int = 1
@@ -46,7 +60,7 @@ class RecognitionConfig:
     # training grasps near that pose; recognition/grasp_likelihood.py). The kernel widths
     # (sensor scale and finger-angle width tuned on the hard library's seeds 100-119,
     # docs/benchmark.md):
-    belief: str = "histogram"
+    belief: Belief = "histogram"
     likelihood_pose_sigma_m: float = 0.02
     likelihood_pose_sigma_deg: float = 12.0
     likelihood_sensor_scale: float = 1.0
@@ -58,7 +72,7 @@ class RecognitionConfig:
 class ObservationConfig:
     # One observation is a whole grasp's triangles ("grasp", measured best in the twin:
     # docs/planner.md) or a single triangle ("triangle", the paper).
-    granularity: str = "grasp"
+    granularity: Granularity = "grasp"
     translation_cell_m: float = 0.06
     quaternion_cell: float = 0.05
     triangle_cell: float = 0.08
@@ -66,7 +80,7 @@ class ObservationConfig:
     # frame, pooled over objects) or "absolute" (the discretised nominal pose q itself: class y
     # answers with what its own grasp at, or near, q looked like; docs/planner.md). Absolute
     # is the default: with the shared grid every class has a grasp at every pose.
-    action_frame: str = "absolute"
+    action_frame: ActionFrame = "absolute"
     # "absolute" only: a class without a grasp at q's cell answers with its grasp nearest to q
     # if that lies within these (the objects' grids differ in radius, not in direction).
     absolute_near_m: float = 0.06
@@ -78,7 +92,7 @@ class PlannerConfig:
     # Defaults measured in the twin (docs/planner.md, "The defaults: what beats random, and
     # why"); the paper's own settings are lam 0.5, 20 simulations, the whole path executed,
     # objective "final".
-    policy: str = "tree"  # tree | greedy | random
+    policy: PolicyName = "tree"  # tree | greedy | random
     horizon: int = 5
     simulations: int = 200
     exploration_c: float = 1.0
@@ -88,19 +102,19 @@ class PlannerConfig:
     # What c_m measures: "pose" (the paper: translation and rotation between the poses) or
     # "travel_time" (with an arm that estimates it, e.g. Baxter: the move's duration before
     # planning, over the longest move; docs/motion.md). Only matters with lam > 0.
-    movement_cost: str = "pose"
+    movement_cost: MovementCost = "pose"
     # Execute only the first pose of the path, then search again from the real grasp.
     replan_every_grasp: bool = True
     # Eq. 4 when some classes have no data for (action, cell): "renormalise" draws y among the
     # classes that have data; "per_class" draws y from the full p(y|h) and lets that class
     # back off to its action-only row, else observe nothing (docs/planner.md).
-    eq4_sampling: str = "renormalise"
+    eq4_sampling: Eq4Sampling = "renormalise"
     # The recognition term of Eq. 1: "final" (the paper) scores 1 - max p(y | h_T) at the
     # path's end only; "anytime" averages 1 - max p(y | h_t) over t = 1..T, so a path that is
     # confident after its first grasps beats one that only gets there by its last (with T = 1
     # both are Eq. 1). "info_gain": the mean over the path of H(p(y | h_t)) / log K, i.e. the
     # expected entropy reduction per step (docs/planner.md).
-    objective: str = "anytime"
+    objective: Objective = "anytime"
     # Eq. 4 draws the class that produces a simulated observation from p(y | h)^(1 / tau),
     # normalised: 1 is Eq. 4; above 1 the runners-up's observations are imagined more often,
     # so a path that would test the leading class is not scored as learning nothing when the
@@ -129,7 +143,7 @@ class GridConfig:
     # "shared": every object is grasped at the union of all training objects' grids, so each
     # class has data at every pose the planner can choose at test time (the object, hence its
     # grid, is unknown then). "per_object": each object at its own grid only (the paper).
-    layout: str = "shared"
+    layout: GridLayout = "shared"
 
 
 @dataclass
@@ -170,7 +184,7 @@ class SimConfig:
     # What a grasp reports: "tactile" (the TakkTile's sensors over threshold) or "stall" (the
     # ReFlex SF, which has none: one contact per finger that stopped against the object, at its
     # distal sensor site `stall_contact_site`, as drivers/reflex/sf.py reports it).
-    sensing: str = "tactile"
+    sensing: Sensing = "tactile"
     stall_contact_site: int = 6
     # Distal sensor sites (link frame); the visualiser URDF's by default. tactile_triangles'
     # Gazebo model: x = [0.0135, 0.0215, 0.0295, 0.0375], z = 0.009 each.
@@ -371,27 +385,16 @@ def set_devices(cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVIC
         setattr(cfg, kind, device_config(kind, raw.get(kind, {})))
 
 
-# Settings that take one of a few words; anything else is refused when the config is loaded.
-CHOICES: dict[str, tuple[str, ...]] = {
-    "recognition.classifier": ("svm", "nn_inner", "nn_intersection"),
-    "recognition.belief": ("histogram", "grasp_likelihood"),
-    "observation.granularity": ("triangle", "grasp"),
-    "observation.action_frame": ("relative", "absolute"),
-    "planner.policy": ("tree", "greedy", "random"),
-    "planner.eq4_sampling": ("renormalise", "per_class"),
-    "planner.objective": ("final", "anytime", "info_gain"),
-    "planner.movement_cost": ("pose", "travel_time"),
-    "grid.layout": ("shared", "per_object"),
-    "sim.sensing": ("tactile", "stall"),
-}
-
-
-def _check_choices(cfg: Config) -> None:
-    for dotted, allowed in CHOICES.items():
-        section, key = dotted.split(".")
-        value = getattr(getattr(cfg, section), key)
-        if value not in allowed:
-            raise ConfigError(f"{dotted}: {value!r} is not one of {', '.join(allowed)}")
+def _check_choices(obj: Any, prefix: str = "") -> None:
+    """Every setting typed as a `Literal` holds one of its words (also those set in code)."""
+    hints = typing.get_type_hints(type(obj))
+    for f in dataclasses.fields(obj):
+        value, tp = getattr(obj, f.name), hints.get(f.name)
+        if dataclasses.is_dataclass(value):
+            _check_choices(value, f"{prefix}{f.name}.")
+        elif typing.get_origin(tp) is Literal and value not in typing.get_args(tp):
+            allowed = ", ".join(typing.get_args(tp))
+            raise ConfigError(f"{prefix}{f.name}: {value!r} is not one of {allowed}")
 
 
 def as_dict(cfg: Any) -> dict[str, Any]:

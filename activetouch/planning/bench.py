@@ -34,8 +34,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from activetouch.config import CHOICES
 from activetouch.planning.mcts import TreeSearch
+from activetouch.planning.policies import OBJECTIVES
 from activetouch.planning.synthetic import SyntheticProblem, synthetic_problem
 
 # Paper Sec. VI-C (3.6 GHz Xeon, 1063 actions per node): seconds per simulation.
@@ -278,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
         "--objective",
-        choices=CHOICES["planner.objective"],
+        choices=OBJECTIVES,
         default="anytime",
         help="recognition term: anytime (the default planner), final (the paper's Eq. 1) or "
         "info_gain",

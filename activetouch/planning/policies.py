@@ -15,12 +15,13 @@ executes them, adds the real observations to the state (`PlanningState.advance`)
 
 from __future__ import annotations
 
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from activetouch.config import CHOICES, PlannerConfig
+from activetouch.config import Eq4Sampling, Objective, PlannerConfig, PolicyName
 from activetouch.errors import ConfigError, PlanningError
 from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
 from activetouch.planning.observation_model import ObservationModel
@@ -225,9 +226,9 @@ class RandomPolicy(Policy):
 
 
 # The allowed words live with the config; policies built without a config check them too.
-POLICY_NAMES: tuple[str, ...] = CHOICES["planner.policy"]
-EQ4_SAMPLING: tuple[str, ...] = CHOICES["planner.eq4_sampling"]
-OBJECTIVES: tuple[str, ...] = CHOICES["planner.objective"]
+POLICY_NAMES: tuple[str, ...] = typing.get_args(PolicyName)
+EQ4_SAMPLING: tuple[str, ...] = typing.get_args(Eq4Sampling)
+OBJECTIVES: tuple[str, ...] = typing.get_args(Objective)
 
 
 def make_policy(
