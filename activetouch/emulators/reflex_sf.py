@@ -1,12 +1,22 @@
 """Four emulated Dynamixel MX-28 servos (Protocol 1.0) on a pty pair: the ReFlex SF as the
-driver's serial port sees it.
+driver's serial port sees it, written from the protocol and hardware facts (no driver code).
 
-It stands in for the servos, not for dynamixel-sdk: it parses instruction packets and checks
-their checksums itself (``FF FF id len instr params.. ~sum``), answers with status packets, and
-keeps a control table per servo. Supported: PING, READ, WRITE, SYNC_WRITE (and a checksum
-error status for a bad packet addressed to one servo). Finger motion comes from a
-`FingerModel` (as in the TakkTile emulator): a finger that meets the object stalls there and
-its load rises, which is all the SF can feel.
+The servos are multi-turn (raw 0..28672, 2π/4096 rad per tick) and sit at the hand's open pose
+at their zero points, stored like reflex-ros-pkg's ``reflex_sf_motor_zero_points.yaml`` in
+motor radians (25.21, 26.17, 23.58, 23.46 rad: raw ≈ 15,400-17,100). A finger closes when its
+servo turns in its tendon's spooling direction, which is +position for servos 1 and 3 and
+-position for 2 and the preshape 4 (``motor_to_joint_inverted`` False/True/False/True); the
+motor turns `gear` times the joint. At power-on torque is off and the goal register equals the
+present position, as on the real servo.
+
+A finger that meets the object stops there (its `FingerStops`, joint-side spool angles) and
+the servo's present load rises with how far its goal is beyond; the load's bit 10 is the
+direction the servo pushes (set: towards lower positions, clear: towards higher), its low ten
+bits the magnitude in 1/1024 of the maximum. Supported instructions: PING, READ, WRITE,
+SYNC_WRITE (a bad checksum addressed to one servo gets a checksum-error status).
+
+For tests it counts what a driver did: goal writes per servo, torque writes, and how far each
+servo has moved from where it started (`moved_rad`).
 """
 
 from __future__ import annotations
@@ -19,26 +29,40 @@ import threading
 import time
 import tty
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
-
-from activetouch.emulators.reflex_takktile import FingerModel, KinematicFingers
 
 INST_PING, INST_READ, INST_WRITE, INST_SYNC_WRITE = 0x01, 0x02, 0x03, 0x83
 BROADCAST = 0xFE
 ERR_CHECKSUM, ERR_INSTRUCTION = 0x10, 0x40
 TICK = 2 * math.pi / 4096  # MX-28, rad per tick
+RAW_MAX = 28672  # multi-turn range of the SF's servos (reflex_sf.yaml `max`)
 MX28_MODEL = 29
+SPEED_UNIT_RAD_S = 0.114 * 2 * math.pi / 60  # moving speed register: 0.114 rpm per unit
+MAX_SPEED_RAD_S = 5.9  # register 0 means "as fast as it goes" (~55 rpm at 12 V)
+# Control table addresses (MX-28, Protocol 1.0).
+TORQUE_ENABLE, GOAL, SPEED, PRESENT, LOAD, VOLTAGE, TEMPERATURE = 24, 30, 32, 36, 40, 42, 43
+READ_ONLY = range(36, 50)
+
+UPSTREAM_ZERO_POINTS = (25.21, 26.17, 23.58, 23.46)  # motor rad, the hand open
+SPOOL_DIRECTION = (1, -1, 1, -1)  # sign of the position change that closes, by servo
+GEAR = (1.42, 1.42, 1.42, 1.5)  # motor / joint
+PRESHAPE_TRAVEL = 1.75  # joint rad the preshape can turn from its zero
 
 
-def checksum(body: bytes | list[int]) -> int:
-    """~(id + length + instruction/error + params) & 0xFF."""
-    return (~sum(body)) & 0xFF
+class FingerStops(Protocol):
+    """Where each finger meets something: joint-side spool angles (inf: nothing in the way)."""
+
+    def stall_spool(self) -> np.ndarray: ...
 
 
-def status_packet(dxl_id: int, error: int, params: bytes = b"") -> bytes:
-    body = bytes([dxl_id, len(params) + 2, error]) + params
-    return b"\xff\xff" + body + bytes([checksum(body)])
+@dataclass
+class FixedStops:
+    contact_spool: list[float] = field(default_factory=lambda: [math.inf] * 3)
+
+    def stall_spool(self) -> np.ndarray:
+        return np.asarray(self.contact_spool, dtype=np.float64)
 
 
 @dataclass
@@ -46,21 +70,15 @@ class SFFaults:
     mute: list[int] = field(default_factory=list)  # servo ids that do not answer
     corrupt_replies: float = 0.0  # fraction of status packets with a wrong checksum
     reply_delay_s: float = 0.0
+    alarm: dict[int, int] = field(default_factory=dict)  # servo id -> status error bits
+    temperature_c: dict[int, int] = field(default_factory=dict)  # servo id -> reading
 
 
 @dataclass
 class SFEmulatorConfig:
     ids: tuple[int, ...] = (1, 2, 3, 4)
-    gear_ratio: tuple[float, ...] = (1.42, 1.42, 1.42, 1.5)
-    motor_inverted: tuple[int, ...] = (1, 1, -1, -1)
-    # Raw 1000 at the open pose for normal servos, 3500 for inverted ones (in range 0..4095).
-    motor_zero_rad: tuple[float, ...] = (
-        1000 * TICK / 1.42,
-        1000 * TICK / 1.42,
-        3500 * TICK / 1.42,
-        3500 * TICK / 1.5,
-    )
-    max_speed_rad_s: float = 6.0
+    zero_points: tuple[float, ...] = UPSTREAM_ZERO_POINTS  # motor rad at the open pose
+    start_offset_rad: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)  # motor rad from zero at start
     seed: int = 0
     faults: SFFaults = field(default_factory=SFFaults)
 
@@ -69,25 +87,29 @@ class SFEmulator:
     """`port` is the pty slave path the driver opens. Start/stop, or use as a context."""
 
     def __init__(
-        self, cfg: SFEmulatorConfig | None = None, fingers: FingerModel | None = None
+        self, cfg: SFEmulatorConfig | None = None, fingers: FingerStops | None = None
     ) -> None:
         self.cfg = cfg or SFEmulatorConfig()
-        self.fingers = fingers or KinematicFingers()
+        self.fingers = fingers if fingers is not None else FixedStops()
         self.faults = self.cfg.faults
         self.rng = np.random.default_rng(self.cfg.seed)
         self.master, self._slave = os.openpty()
         tty.setraw(self._slave)  # no echo, no line discipline: bytes pass as they are
         self.port = os.ttyname(self._slave)
-        self.gear = np.asarray(self.cfg.gear_ratio, dtype=np.float64)
-        self.inv = np.asarray(self.cfg.motor_inverted, dtype=np.float64)
-        self.zero = np.asarray(self.cfg.motor_zero_rad, dtype=np.float64)
+        self.zero = np.asarray(self.cfg.zero_points, dtype=np.float64)
+        self.dir = np.asarray(SPOOL_DIRECTION, dtype=np.float64)
+        self.gear = np.asarray(GEAR, dtype=np.float64)
+        self.pos = self.zero + np.asarray(self.cfg.start_offset_rad, dtype=np.float64)
+        self.start_pos = self.pos.copy()
+        self.moved_rad = np.zeros(4)  # furthest each servo got from where it started
+        self.blocked = np.zeros(4, dtype=bool)  # finger held at its stop by what it touches
         self.tables = {i: bytearray(74) for i in self.cfg.ids}
-        self.joint = np.zeros(4)  # joint-side angles: 3 spools, preshape
         for k, i in enumerate(self.cfg.ids):
             t = self.tables[i]
             t[0], t[1], t[3], t[4] = MX28_MODEL, 0, i, 34  # model, id, baud register 34
-            raw = self._raw(k, 0.0)
-            t[30], t[31] = raw & 0xFF, raw >> 8  # goal = present at start
+            self._put16(t, GOAL, self._raw(self.pos[k]))  # goal = present at power-on
+        self.goal_writes = {i: 0 for i in self.cfg.ids}
+        self.torque_writes: list[tuple[int, int]] = []  # (id, value)
         self.counts = {"packets": 0, "checksum_errors": 0, "replies": 0}
         self.instructions: list[tuple[int, int, bytes]] = []  # (id, instruction, params)
         self._buf = bytearray()
@@ -97,17 +119,28 @@ class SFEmulator:
         self._last = time.monotonic()
         self._update_present()
 
-    def _raw(self, k: int, angle: float) -> int:
-        v = (self.inv[k] * angle + self.zero[k]) * self.gear[k] / TICK
-        return int(min(4095, max(0, round(v))))
+    # -- units ----------------------------------------------------------------------------
 
-    def _angle(self, k: int, raw: int) -> float:
-        return float(self.inv[k] * (raw * TICK / self.gear[k] - self.zero[k]))
+    @staticmethod
+    def _raw(motor_rad: float) -> int:
+        return int(min(RAW_MAX, max(0, round(motor_rad / TICK))))
+
+    @staticmethod
+    def _put16(t: bytearray, addr: int, v: int) -> None:
+        t[addr], t[addr + 1] = v & 0xFF, (v >> 8) & 0xFF
+
+    def spool(self) -> np.ndarray:
+        """Joint-side angles the tendons are spooled by (3 fingers, preshape), rad."""
+        return self.dir * (self.pos - self.zero) / self.gear
+
+    def raw_positions(self) -> list[int]:
+        return [self._raw(p) for p in self.pos]
 
     # -- lifecycle ------------------------------------------------------------------------
 
     def start(self) -> SFEmulator:
         self._running = True
+        self._last = time.monotonic()
         self._thread = threading.Thread(target=self._loop, name="sf-emulator", daemon=True)
         self._thread.start()
         return self
@@ -127,7 +160,7 @@ class SFEmulator:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
-    # -- servos ---------------------------------------------------------------------------
+    # -- bytes ----------------------------------------------------------------------------
 
     def _loop(self) -> None:
         while self._running:
@@ -172,7 +205,7 @@ class SFEmulator:
     def _handle(self, pkt: bytes) -> bytes | None:
         dxl_id, length = pkt[2], pkt[3]
         self.counts["packets"] += 1
-        if length < 2 or checksum(pkt[2:-1]) != pkt[-1]:
+        if length < 2 or (~sum(pkt[2:-1])) & 0xFF != pkt[-1]:
             self.counts["checksum_errors"] += 1
             return self._reply(dxl_id, ERR_CHECKSUM)
         inst, params = pkt[4], pkt[5:-1]
@@ -199,7 +232,9 @@ class SFEmulator:
     def _reply(self, dxl_id: int, error: int, params: bytes = b"") -> bytes | None:
         if dxl_id == BROADCAST or dxl_id not in self.tables or dxl_id in self.faults.mute:
             return None
-        pkt = status_packet(dxl_id, error, params)
+        error |= self.faults.alarm.get(dxl_id, 0)
+        body = bytes([dxl_id, len(params) + 2, error]) + params
+        pkt = b"\xff\xff" + body + bytes([(~sum(body)) & 0xFF])
         if self.rng.random() < self.faults.corrupt_replies:
             pkt = pkt[:-1] + bytes([pkt[-1] ^ 0x5A])
         self.counts["replies"] += 1
@@ -207,38 +242,56 @@ class SFEmulator:
 
     def _write(self, dxl_id: int, addr: int, data: bytes) -> None:
         t = self.tables[dxl_id]
-        if addr in (36, 37, 38, 39, 40, 41, 42, 43):  # read-only present values
-            return
-        t[addr : addr + len(data)] = data
+        n = len(data)
+        keep = bytes(t[READ_ONLY.start : READ_ONLY.stop])
+        t[addr : addr + n] = data
+        t[READ_ONLY.start : READ_ONLY.stop] = keep  # present values are the servo's own
+        if addr <= GOAL < addr + n or addr <= GOAL + 1 < addr + n:
+            self.goal_writes[dxl_id] += 1
+            goal = t[GOAL] | t[GOAL + 1] << 8
+            self._put16(t, GOAL, min(goal, RAW_MAX))  # the servo's own goal limit
+        if addr <= TORQUE_ENABLE < addr + n:
+            self.torque_writes.append((dxl_id, t[TORQUE_ENABLE]))
+
+    # -- physics --------------------------------------------------------------------------
 
     def _advance(self) -> None:
         now = time.monotonic()
         dt, self._last = now - self._last, now
-        step = self.cfg.max_speed_rad_s * dt
+        stall = np.append(np.asarray(self.fingers.stall_spool(), dtype=np.float64), PRESHAPE_TRAVEL)
         for k, i in enumerate(self.cfg.ids):
             t = self.tables[i]
-            if not t[24]:  # torque off: the servo does not drive
+            if not t[TORQUE_ENABLE]:  # torque off: the servo does not drive
                 continue
-            goal = self._angle(k, t[30] | t[31] << 8)
-            self.joint[k] += float(np.clip(goal - self.joint[k], -step, step))
-        self.joint[:3] = np.clip(self.joint[:3], 0.0, self.fingers.stall_spool())
-        self.joint[3] = float(np.clip(self.joint[3], 0.0, 1.75))
+            speed = t[SPEED] | (t[SPEED + 1] & 0x03) << 8
+            v = MAX_SPEED_RAD_S if speed == 0 else min(MAX_SPEED_RAD_S, speed * SPEED_UNIT_RAD_S)
+            goal = (t[GOAL] | t[GOAL + 1] << 8) * TICK
+            p = self.pos[k] + float(np.clip(goal - self.pos[k], -v * dt, v * dt))
+            # Spooling past where the finger meets something is blocked: the servo stalls.
+            spool = self.dir[k] * (p - self.zero[k]) / self.gear[k]
+            self.blocked[k] = spool >= stall[k]
+            if self.blocked[k]:
+                p = self.zero[k] + self.dir[k] * stall[k] * self.gear[k]
+                p = self.pos[k] if self.dir[k] * (p - self.pos[k]) < 0 else p
+            self.pos[k] = p
+        self.moved_rad = np.maximum(self.moved_rad, np.abs(self.pos - self.start_pos))
         self._update_present()
 
     def _update_present(self) -> None:
-        contact = np.asarray(getattr(self.fingers, "contact_spool", [np.inf] * 3), dtype=float)
-        press = np.append(np.maximum(0.0, self.joint[:3] - contact), 0.0)
         for k, i in enumerate(self.cfg.ids):
             t = self.tables[i]
-            raw = self._raw(k, float(self.joint[k]))
-            t[36], t[37] = raw & 0xFF, raw >> 8
-            # Load against closing: fraction 2.0 per rad pressed, capped; bit 10 gives the
-            # sign that reads positive for this servo's inversion.
-            mag = int(min(1023, round(press[k] * 2.0 * 1024)))
-            load = mag | 0x400 if self.inv[k] > 0 else mag
-            t[40], t[41] = load & 0xFF, load >> 8
-            t[42], t[43] = 120, 35
+            self._put16(t, PRESENT, self._raw(self.pos[k]))
+            goal = (t[GOAL] | t[GOAL + 1] << 8) * TICK
+            push = goal - self.pos[k] if t[TORQUE_ENABLE] else 0.0
+            # Pushing against a blocked finger loads the servo: 8 x the maximum per joint rad
+            # of goal beyond the stop (a stiff object); moving freely, a little (friction).
+            per_rad = 8.0 if self.blocked[k] and self.dir[k] * push > 0 else 0.05
+            mag = int(min(1023, round(abs(push) / self.gear[k] * per_rad * 1024)))
+            self._put16(t, LOAD, mag | (0x400 if push < 0 and mag else 0))
+            t[VOLTAGE] = 120
+            t[TEMPERATURE] = self.faults.temperature_c.get(i, 35)
 
     def set_object(self, contact_spool: list[float]) -> None:
+        """Fixed stops at these joint-side spool angles (the fingers meet an object there)."""
         with self._lock:
-            self.fingers.contact_spool = list(contact_spool)  # type: ignore[attr-defined]
+            self.fingers = FixedStops(list(contact_spool))

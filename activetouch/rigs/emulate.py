@@ -149,8 +149,8 @@ def _serve(a: argparse.Namespace, fingers: object) -> int:
         cfg_sf = SFEmulatorConfig(seed=a.seed, faults=SFFaults(mute=a.mute))
         with SFEmulator(cfg_sf, fingers) as emu_sf:
             print(
-                f"reflex-sf emulator on {emu_sf.port}; motor_zero_rad = "
-                f"{list(cfg_sf.motor_zero_rad)}",
+                f"reflex-sf emulator on {emu_sf.port}; motor_zero_points = "
+                f"{list(cfg_sf.zero_points)}",
                 flush=True,
             )
             done.wait()

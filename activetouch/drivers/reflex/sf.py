@@ -7,9 +7,23 @@ reported as one contact at its distal link's sensor site `contact_site` from the
 (free-finger coupling: proximal = spool / (1 + k), distal = k * proximal). Three fingers give
 at most three contacts: one triangle per grasp, which the triangle descriptor still uses.
 
-A poll thread reads position and load of every servo at `control_hz`; commands share the bus
-lock with it. `stop()` writes hold goals at once (between two transactions) and a running close
-raises at its next step; servos that stop answering for `stream_timeout_s` make the hand stale.
+Servo conventions are reflex-ros-pkg's (``reflex_sf.yaml``, ``reflex_usb_motor.py``), so a
+lab's ``reflex_sf_motor_zero_points.yaml`` can be used as it is: the servos are multi-turn (raw
+0..28672, 2π/4096 rad per tick); each has a zero point in *motor* radians (the hand open,
+`hand.motor_zero_points`) and an inversion by servo id ([+1, -1, +1, -1]: f2 and the preshape
+turn the other way); joint = inversion * (motor - zero) / gear; goals are bounded to the joint's
+travel from its zero (3.75 rad fingers, 1.75 preshape). Load is negated for non-inverted
+servos and smoothed (EMA 0.25), and an overloaded servo is loosened on every reading, holding
+included, as upstream does.
+
+Connecting moves nothing: it reads the servos, refuses readings that cannot be true (a servo
+that reads far outside its travel from its zero point, an alarm bit, over-temperature) with an
+error naming the servo, and sets the servos' speed; torque comes on with the first motion
+command, after a hold goal at the position read. A poll thread reads position, load, voltage
+and temperature of every servo at `control_hz`; commands share the bus lock with it. `stop()`
+writes hold goals at once (between two transactions) and a running close raises at its next
+step; servos that stop answering for `stream_timeout_s` make the hand stale; an implausible
+reading while running turns the torque off and fails every further command with its reason.
 """
 
 from __future__ import annotations
@@ -29,10 +43,12 @@ from activetouch.drivers.reflex.common import (
     CloseStep,
     RateLimitedWarning,
     ReflexHandState,
+    ServoFaultError,
     StallDetector,
     StreamLostError,
     close_step,
 )
+from activetouch.drivers.reflex.kinematics import MX28_SCALE
 from activetouch.errors import ConfigError, StoppedError
 from activetouch.interfaces import (
     N_FINGERS,
@@ -52,7 +68,13 @@ log = logging.getLogger(__name__)
 ADDR_TORQUE_ENABLE = 24
 ADDR_GOAL_POSITION = 30
 ADDR_MOVING_SPEED = 32
-ADDR_PRESENT_POSITION = 36  # then present speed (38) and present load (40), 2 bytes each
+ADDR_PRESENT_POSITION = 36  # then speed (38), load (40), 2 bytes each; voltage 42, temperature 43
+RAW_MAX = 28672  # the SF's multi-turn range (reflex_sf.yaml motor `max`)
+# Status-packet error bits that mean the servo is not fit to move (Protocol 1.0): input
+# voltage, angle limit, overheating, range, overload (checksum and instruction bits are ours).
+ALARM_BITS = {0x01: "input voltage", 0x02: "angle limit", 0x04: "overheating", 0x08: "range",
+              0x20: "overload"}  # fmt: skip
+SPEED_UNIT_RAD_S = 0.114 * 2 * 3.141592653589793 / 60  # moving speed register: 0.114 rpm/unit
 STANDARD_BAUDS = (
     9600,
     19200,
@@ -78,14 +100,24 @@ class ReflexSFConfig(HandConfig):
     baud: int = 57600
     motor_ids: list[int] = field(default_factory=lambda: [1, 2, 3, 4])
     gear_ratio: list[float] = field(default_factory=lambda: [1.42, 1.42, 1.42, 1.5])
-    motor_inverted: list[int] = field(default_factory=lambda: [1, 1, -1, -1])
-    motor_zero_rad: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0, 0.0])
+    # By servo id, upstream's motor_to_joint_inverted False/True/False/True.
+    motor_inverted: list[int] = field(default_factory=lambda: [1, -1, 1, -1])
+    # Motor radians with the hand open, as upstream stores them (reflex_sf_motor_zero_points.yaml;
+    # these are its public values): replace them with your hand's, or `calibrate fingers`.
+    motor_zero_points: list[float] = field(default_factory=lambda: [25.21, 26.17, 23.58, 23.46])
+    motor_zero_rad: list[float] | None = None  # gone (it was joint-side): check() says so
+    motor_travel_rad: list[float] = field(default_factory=lambda: [3.75, 3.75, 3.75, 1.75])
+    # A reading further than this (joint rad) outside [0, travel] cannot be the hand's.
+    plausible_margin_rad: float = 0.5
+    max_temperature_c: int = 70
+    load_filter: float = 0.25  # EMA weight of a new load reading (upstream 0.25)
     # Load (fraction of the maximum) at which a closing finger counts as in contact; the
     # preshape's entry is its overload threshold.
     contact_load: list[float] = field(default_factory=lambda: [0.25, 0.25, 0.25, 0.55])
     contact_site: int = 6  # sensor index (5..8, on the distal link) reported as the contact
     flexure_coupling: float = 0.25  # free finger: distal = k * proximal (as the twin)
-    moving_speed: int = 200  # raw MX-28 speed units (0.114 rpm each), 0 = maximum
+    # Raw MX-28 speed units (0.114 rpm each): 377 is upstream's default_motor_speed 4.5 rad/s.
+    moving_speed: int = 377
     control_hz: float = 40.0
     stream_timeout_s: float = 0.2
     spool_step_rad: float = 0.05
@@ -100,11 +132,18 @@ class ReflexSFConfig(HandConfig):
     warn_interval_s: float = 5.0
 
     def check(self) -> None:
+        if self.motor_zero_rad is not None:
+            raise ConfigError(
+                "hand.motor_zero_rad is gone: it was joint-side; set hand.motor_zero_points, the "
+                "servos' positions with the hand open in motor radians (upstream's zero_point in "
+                "reflex_sf_motor_zero_points.yaml), or run `activetouch calibrate fingers`"
+            )
         for name, n in (
             ("motor_ids", 4),
             ("gear_ratio", 4),
             ("motor_inverted", 4),
-            ("motor_zero_rad", 4),
+            ("motor_zero_points", 4),
+            ("motor_travel_rad", 4),
             ("contact_load", 4),
         ):
             if len(getattr(self, name)) != n:
@@ -119,6 +158,19 @@ class ReflexSFConfig(HandConfig):
             raise ConfigError("hand.contact_site: a distal sensor index, 5..8")
         if any(not 0 < v <= 1 for v in self.contact_load):
             raise ConfigError("hand.contact_load: fractions in (0, 1]")
+        for k, (z, g, t, s) in enumerate(
+            zip(self.motor_zero_points, self.gear_ratio, self.motor_travel_rad,
+                self.motor_inverted, strict=True)
+        ):  # fmt: skip
+            far = z + s * t * g
+            if not (0 <= z / MX28_SCALE <= RAW_MAX and 0 <= far / MX28_SCALE <= RAW_MAX):
+                raise ConfigError(
+                    f"hand.motor_zero_points[{k}] = {z} rad: the finger's travel from there "
+                    f"leaves the servo's range 0..{RAW_MAX} ticks (motor radians, upstream's "
+                    "zero_point; not joint radians)"
+                )
+        if not 0 < self.load_filter <= 1:
+            raise ConfigError("hand.load_filter: a weight in (0, 1]")
         for name in ("control_hz", "stream_timeout_s", "spool_step_rad", "close_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"hand.{name}: must be > 0")
@@ -128,19 +180,70 @@ class ReflexSFConfig(HandConfig):
         return ReflexSFHand(self)
 
 
+def joint_angles(
+    raw: np.ndarray, zero: np.ndarray, gear: np.ndarray, inv: np.ndarray
+) -> np.ndarray:
+    """Joint-side angles of raw positions: inversion * (motor rad - zero point) / gear."""
+    return inv * (np.asarray(raw, dtype=np.float64) * MX28_SCALE - zero) / gear
+
+
+def raw_goals(joint: np.ndarray, zero: np.ndarray, gear: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """Raw goal positions for joint-side angles (the inverse of `joint_angles`)."""
+    motor = zero + inv * np.asarray(joint, dtype=np.float64) * gear
+    return np.rint(motor / MX28_SCALE).astype(np.int64)
+
+
+def upstream_load(raw: np.ndarray, inv: np.ndarray) -> np.ndarray:
+    """One load reading as reflex-ros-pkg sees it: (raw & 0x3FF) / 1024, negative when bit 10
+    is set (dynamixel_io), then negated for non-inverted servos (`_handle_motor_load`). Both
+    kinds of servo then read negative while they tighten against something."""
+    raw = np.asarray(raw, dtype=np.int64)
+    dxl = (raw & 0x3FF) / 1024.0 * np.where(raw & 0x400, -1.0, 1.0)
+    return np.where(np.asarray(inv) > 0, -dxl, dxl)
+
+
+def implausible(
+    cfg: ReflexSFConfig, servo: int, raw: int, joint: float, temperature: int, error: int
+) -> str | None:
+    """Why a servo reading cannot be the hand's, with what to check; None if it can."""
+    alarms = [name for bit, name in ALARM_BITS.items() if error & bit]
+    if alarms:
+        return (
+            f"ReFlex SF servo {servo} reports {', '.join(alarms)} (status 0x{error:02x}): power "
+            "the hand down and check its supply, cabling and that nothing jams the finger"
+        )
+    if temperature > cfg.max_temperature_c:
+        return (
+            f"ReFlex SF servo {servo} is at {temperature} °C (limit {cfg.max_temperature_c}): "
+            "let it cool; a finger pressing for long heats its servo"
+        )
+    k = cfg.motor_ids.index(servo)
+    travel, m = cfg.motor_travel_rad[k], cfg.plausible_margin_rad
+    if not (0 < raw <= RAW_MAX) or not -m <= joint <= travel + m:
+        zero = cfg.motor_zero_points[k]
+        return (
+            f"ReFlex SF servo {servo} reads raw {raw} ({joint:+.2f} rad from its zero point "
+            f"{zero} rad, travel 0..{travel}): the servo has not answered properly, or "
+            "hand.motor_zero_points is not this hand's (motor radians, reflex-ros-pkg's "
+            "zero_point) or a finger slipped a turn; open the hand by hand and run "
+            "`activetouch calibrate fingers`"
+        )
+    return None
+
+
 @dataclass(frozen=True)
 class ServoReading:
     seq: int
     mono: float
     wall: float
     raw_position: np.ndarray  # (4,)
-    motor: np.ndarray  # (4,) spool angles and preshape, rad
-    load: np.ndarray  # (4,) signed fraction of max load (positive against closing)
+    motor: np.ndarray  # (4,) joint-side spool angles and preshape, rad
+    load: np.ndarray  # (4,) filtered load as upstream reports it (negative tightening)
 
-
-def load_fraction(raw: np.ndarray, inverted: np.ndarray) -> np.ndarray:
-    """Signed load as a fraction of the maximum: (raw & 0x3FF) / 1024, sign from bit 10."""
-    return kinematics.load_signed(raw, inverted) / 1024.0
+    @property
+    def closing_load(self) -> np.ndarray:
+        """How hard each servo pulls its tendon against something (fraction of max)."""
+        return -self.load
 
 
 class ReflexSFHand(Hand):
@@ -149,7 +252,12 @@ class ReflexSFHand(Hand):
         self.ids = [int(i) for i in cfg.motor_ids]
         self.gear = np.asarray(cfg.gear_ratio, dtype=np.float64)
         self.inverted = np.asarray(cfg.motor_inverted, dtype=np.float64)
-        self.zero = np.asarray(cfg.motor_zero_rad, dtype=np.float64)
+        self.zero = np.asarray(cfg.motor_zero_points, dtype=np.float64)
+        self.travel = np.asarray(cfg.motor_travel_rad, dtype=np.float64)
+        self._load = np.zeros(4)  # EMA of the upstream-convention load
+        self._armed = False  # torque on, after a hold goal (first motion command)
+        self._fault: str | None = None
+        self._closing = False
         self.stop_latch = StopLatch()
         self.warn = RateLimitedWarning(log, cfg.warn_interval_s)
         self.last_close_reasons: tuple[str, ...] = ()
@@ -185,12 +293,13 @@ class ReflexSFHand(Hand):
                 raise StreamLostError(
                     f"ReFlex SF: servos {self.ids} do not answer on {self.cfg.port}"
                 )
+            bad = self._check(r)
+            if bad is not None:
+                raise ServoFaultError(bad)  # nothing has been written
             self._publish(r)
-            # Hold where they are, then torque on, at the configured speed.
-            self._write_goals(r[0], motion=False)
+            # The servos' speed, as upstream sets it at start; no goal, no torque: nothing moves.
             for i in self.ids:
                 self._write(2, i, ADDR_MOVING_SPEED, self.cfg.moving_speed)
-                self._write(1, i, ADDR_TORQUE_ENABLE, 1)
             self._running = True
             self._thread = threading.Thread(target=self._poll, name="reflex-sf", daemon=True)
             self._thread.start()
@@ -203,6 +312,8 @@ class ReflexSFHand(Hand):
         if self._thread is not None:
             self._thread.join(timeout=1.0)
             self._thread = None
+        if self._port is not None and self._armed:
+            self._torque_off()  # as upstream leaves the hand: limp, not holding
         if self._port is not None:
             with self._bus:
                 self._port.closePort()
@@ -224,23 +335,67 @@ class ReflexSFHand(Hand):
             res, _err = fn(self._port, dxl_id, addr, int(value))
         if res != 0:
             self.warn("write_failed", f"ReFlex SF: write to servo {dxl_id} failed ({res})")
+            with self._cond:  # a servo that does not answer is a lost stream
+                self._stale = True
+                self._cond.notify_all()
             raise StreamLostError(f"ReFlex SF: servo {dxl_id} did not take a write ({res})")
 
-    def _read_all(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(raw positions, raw loads) of the 4 servos, or None if one does not answer."""
+    def _read_all(self) -> tuple[np.ndarray, ...] | None:
+        """(raw positions, raw loads, temperatures, status errors) of the 4 servos, or None if
+        one does not answer."""
         pos, load = np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
+        temp, err = np.zeros(4, dtype=np.int64), np.zeros(4, dtype=np.int64)
         for k, i in enumerate(self.ids):
             with self._bus:
-                data, res, _err = self._ph.readTxRx(self._port, i, ADDR_PRESENT_POSITION, 6)
-            if res != 0 or len(data) != 6:
+                data, res, e = self._ph.readTxRx(self._port, i, ADDR_PRESENT_POSITION, 8)
+            if res != 0 or len(data) != 8:
                 self.warn("read_failed", f"ReFlex SF: servo {i} did not answer a read ({res})")
                 return None
             pos[k] = data[0] | data[1] << 8
             load[k] = data[4] | data[5] << 8
-        return pos, load
+            temp[k], err[k] = data[7], int(e)
+        return pos, load, temp, err
 
-    def _publish(self, r: tuple[np.ndarray, np.ndarray]) -> None:
+    def _check(self, r: tuple[np.ndarray, ...]) -> str | None:
+        joint = joint_angles(r[0], self.zero, self.gear, self.inverted)
+        for k, i in enumerate(self.ids):
+            bad = implausible(
+                self.cfg, i, int(r[0][k]), float(joint[k]), int(r[2][k]), int(r[3][k])
+            )
+            if bad is not None:
+                return bad
+        return None
+
+    def _torque_off(self) -> None:
+        for i in self.ids:
+            with contextlib.suppress(StreamLostError, OSError):
+                self._write(1, i, ADDR_TORQUE_ENABLE, 0)
+        self._armed = False
+
+    def _fail(self, reason: str) -> None:
+        """An implausible reading while running: torque off, and every command refused."""
+        log.error("%s; torque off", reason)
+        self._fault = reason
+        self._torque_off()
+        with self._cond:
+            self._stale = True
+            self._cond.notify_all()
+
+    def _arm(self, r: ServoReading) -> None:
+        """Torque on for the first motion, after a hold goal at the (checked) position read."""
+        if self._armed:
+            return
+        self._write_goals(r.raw_position, motion=False)
+        for i in self.ids:
+            self._write(1, i, ADDR_TORQUE_ENABLE, 1)
+        self._armed = True
+
+    def _publish(self, r: tuple[np.ndarray, ...]) -> None:
         now = time.monotonic()
+        a = self.cfg.load_filter
+        first = self._latest is None
+        new = upstream_load(r[1], self.inverted)
+        self._load = new if first else a * new + (1 - a) * self._load
         with self._cond:
             seq = self._latest.seq + 1 if self._latest is not None else 0
             self._latest = ServoReading(
@@ -248,13 +403,26 @@ class ReflexSFHand(Hand):
                 now,
                 time.time(),
                 r[0],
-                kinematics.motor_angle(
-                    r[0], self.gear, self.inverted, self.zero, kinematics.MX28_SCALE
-                ),
-                load_fraction(r[1], self.inverted),
+                joint_angles(r[0], self.zero, self.gear, self.inverted),
+                self._load.copy(),
             )
             self._last_ok, self._stale = now, False
             self._cond.notify_all()
+
+    def _loosen_if_overloaded(self, r: ServoReading) -> None:
+        """Upstream's overload rule, on every reading: a servo loaded past its threshold is
+        loosened 0.05 motor rad. During a guarded close the close itself stops that finger."""
+        if not self._armed or self._closing:
+            return
+        over = np.abs(r.load) > np.asarray(self.cfg.contact_load)
+        if not over.any():
+            return
+        raw = r.raw_position.copy()
+        for k in np.flatnonzero(over).tolist():
+            log.warning("ReFlex SF: servo %d overloaded at %.2f, loosening", self.ids[k], r.load[k])
+            raw[k] -= round(float(self.inverted[k]) * 0.05 / MX28_SCALE)
+        with contextlib.suppress(StreamLostError, ValueError):
+            self._write_goals(raw, motion=False)
 
     def _poll(self) -> None:
         period = 1.0 / self.cfg.control_hz
@@ -265,9 +433,19 @@ class ReflexSFHand(Hand):
             except Exception:  # a broken port must not kill the thread silently
                 log.exception("ReFlex SF: read failed")
                 r = None
-            if r is not None:
-                self._publish(r)
-            elif not self._stale and time.monotonic() - self._last_ok > self.cfg.stream_timeout_s:
+            if r is not None and self._fault is None:
+                bad = self._check(r)
+                if bad is not None:
+                    self._fail(bad)
+                else:
+                    self._publish(r)
+                    if self._latest is not None:
+                        self._loosen_if_overloaded(self._latest)
+            elif (
+                r is None
+                and not self._stale
+                and time.monotonic() - self._last_ok > self.cfg.stream_timeout_s
+            ):
                 self._lost()
             next_t += period
             time.sleep(max(0.0, next_t - time.monotonic()))
@@ -281,7 +459,7 @@ class ReflexSFHand(Hand):
             self._cond.notify_all()
         self.warn("stream_lost", "ReFlex SF: servos stopped answering; holding")
         latest = self._latest
-        if latest is not None:
+        if latest is not None and self._armed:
             with contextlib.suppress(StreamLostError, OSError):
                 self._write_goals(latest.raw_position, motion=False)
 
@@ -290,8 +468,12 @@ class ReflexSFHand(Hand):
         stopped (checked under the bus lock `stop()` also takes)."""
         import dynamixel_sdk as dxl
 
+        raw = np.asarray(raw, dtype=np.int64)
+        for i, v in zip(self.ids, raw.tolist(), strict=True):
+            if not 0 <= v <= RAW_MAX:  # never clamp: a clamped goal is a turn or more away
+                raise ValueError(f"ReFlex SF: goal {v} for servo {i} is outside 0..{RAW_MAX}")
         sw = dxl.GroupSyncWrite(self._port, self._ph, ADDR_GOAL_POSITION, 2)
-        for i, v in zip(self.ids, np.clip(raw, 0, 4095).tolist(), strict=True):
+        for i, v in zip(self.ids, raw.tolist(), strict=True):
             sw.addParam(i, [int(v) & 0xFF, int(v) >> 8])
         with self._bus:
             if motion:
@@ -301,14 +483,26 @@ class ReflexSFHand(Hand):
             raise StreamLostError(f"ReFlex SF: goal write failed ({res})")
 
     def _goals(self, angles: np.ndarray) -> np.ndarray:
-        return kinematics.motor_raw(
-            angles, self.gear, self.inverted, self.zero, kinematics.MX28_SCALE, hi=4095
-        )
+        """Raw goals for joint-side angles, checked against each joint's travel from its zero
+        (refused beyond it by more than the margin, bounded to it otherwise, as upstream)."""
+        a = np.asarray(angles, dtype=np.float64)
+        m = self.cfg.plausible_margin_rad
+        for k, i in enumerate(self.ids):
+            if not (np.isfinite(a[k]) and -m <= a[k] <= self.travel[k] + m):
+                raise ValueError(
+                    f"ReFlex SF: goal {a[k]:.2f} rad for servo {i} is outside its travel "
+                    f"0..{self.travel[k]} rad"
+                )
+        return raw_goals(np.clip(a, 0.0, self.travel), self.zero, self.gear, self.inverted)
 
     def _wait(self, after_seq: int, check_stop: bool = True) -> ServoReading:
         deadline = time.monotonic() + self.cfg.stream_timeout_s
+        if self._fault is not None:
+            raise ServoFaultError(self._fault)
         with self._cond:
             while True:
+                if self._fault is not None:
+                    raise ServoFaultError(self._fault)
                 if check_stop and self.stop_latch.is_set:
                     raise StoppedError("ReFlex SF: stopped")
                 r = self._latest
@@ -332,7 +526,7 @@ class ReflexSFHand(Hand):
     def stop(self) -> None:
         self.stop_latch.set()
         r = self._latest
-        if r is not None and self._port is not None:
+        if r is not None and self._port is not None and self._armed:
             try:
                 self._write_goals(r.raw_position, motion=False)
             except StreamLostError:
@@ -375,6 +569,7 @@ class ReflexSFHand(Hand):
 
     def open(self) -> None:
         r = self._wait(-1, check_stop=False)
+        self._arm(r)
         target = np.zeros(4)
         target[3] = self._preshape_target if self._preshape_target is not None else r.motor[3]
         self._write_goals(self._goals(target), motion=False)
@@ -386,7 +581,8 @@ class ReflexSFHand(Hand):
         if not 0.0 <= a <= self.cfg.preshape_limit_rad:
             raise ValueError(f"preshape {a} rad is outside 0..{self.cfg.preshape_limit_rad}")
         r = self._wait(-1)
-        target = r.motor.copy()
+        self._arm(r)
+        target = np.clip(r.motor.copy(), 0.0, self.travel)
         target[3] = a
         self._preshape_target = a
         self._write_goals(self._goals(target))
@@ -405,17 +601,35 @@ class ReflexSFHand(Hand):
         cfg = self.cfg
         self.stop_latch.check("guarded close")
         r = self._wait(-1)
+        self._arm(r)
         preshape = r.motor[3] if self._preshape_target is None else self._preshape_target
+        preshape = float(np.clip(preshape, 0.0, self.travel[3]))
         step = CloseStep(r.motor[:N_FINGERS].copy(), np.ones(N_FINGERS, bool), ("",) * N_FINGERS)
         stall = StallDetector(cfg.stall_steps, cfg.stall_tolerance_rad)
         contact_load = np.asarray(cfg.contact_load[:N_FINGERS])
         deadline = time.monotonic() + cfg.close_timeout_s
+        self._closing = True
+        try:
+            return self._close(r, step, stall, contact_load, preshape, deadline)
+        finally:
+            self._closing = False
+
+    def _close(
+        self,
+        r: ServoReading,
+        step: CloseStep,
+        stall: StallDetector,
+        contact_load: np.ndarray,
+        preshape: float,
+        deadline: float,
+    ) -> Grasp:
+        cfg = self.cfg
         while step.active.any():
             if time.monotonic() > deadline:
                 self._write_goals(r.raw_position)
                 raise TimeoutError(f"ReFlex SF: guarded close took over {cfg.close_timeout_s} s")
-            # Closing load is positive; pressing against something is contact.
-            touching = r.load[:N_FINGERS] >= contact_load
+            # Pulling the tendon against something is contact.
+            touching = r.closing_load[:N_FINGERS] >= contact_load
             step = close_step(
                 r.motor,
                 step.target,
