@@ -408,8 +408,16 @@ class TakktileEmulator:
         pos = np.where(answered, np.rint(pos), 0)
         loads = [v if a else 0 for v, a in zip(loads, answered, strict=True)]
         systime = int((time.monotonic() - self._t0) * 1e6)
-        return pack_state(systime, raw, np.rint(enc), pos, loads, answered=answered,
-                          dxl_error=self.dxl_error, dxl_temperature=self.dxl_temperature)
+        return pack_state(
+            systime,
+            raw,
+            np.rint(enc),
+            pos,
+            loads,
+            answered=answered,
+            dxl_error=self.dxl_error,
+            dxl_temperature=self.dxl_temperature,
+        )
 
     def _contact(self) -> np.ndarray:
         c = getattr(self.fingers, "contact_spool", None)

@@ -164,7 +164,7 @@ def _serve(a: argparse.Namespace, fingers: object) -> int:
                 f"reflex-takktile emulator: state to {a.state_to}, commands on "
                 f"{emu.command_address} (the group; unicast dropped on "
                 f"{emu.unicast_address}); hand.motor_zero_points = "
-                f"{[round(z * g, 4) for z, g in zip(cfg.motor_zero_rad, cfg.gear_ratio)]}",
+                f"{[round(z * g, 4) for z, g in zip(cfg.motor_zero_rad, cfg.gear_ratio, strict=False)]}",
                 flush=True,
             )
             done.wait()

@@ -53,8 +53,12 @@ UPSTREAM_GEAR = (1.42, 1.42, 1.42, 1.5)
 DEFAULT_MOTOR_ZERO_POINTS = tuple(
     round(z * g, 6) for z, g in zip(UPSTREAM_MOTOR_ZERO_REFERENCE, UPSTREAM_GEAR, strict=True)
 )
-SERVO_NAMES = ("finger 0 (pointer) servo", "finger 1 (middle) servo", "finger 2 (thumb) servo",
-               "preshape servo")
+SERVO_NAMES = (
+    "finger 0 (pointer) servo",
+    "finger 1 (middle) servo",
+    "finger 2 (thumb) servo",
+    "preshape servo",
+)
 CALIBRATE_TACTILE = "activetouch calibrate tactile"
 
 
@@ -239,14 +243,26 @@ def stored_calibration(device: str, data: object) -> tuple[TactileZero | None, F
         src = f"{store.record_path(root, kind, device)} (measured {rec.measured_at})"
         v = rec.values
         if kind == "tactile":
-            out.append(TactileZero(np.asarray(v["zero"], float), np.asarray(v["threshold"], float), src))
+            out.append(
+                TactileZero(np.asarray(v["zero"], float), np.asarray(v["threshold"], float), src)
+            )
         elif "motor_zero_points" in v:
-            out.append(FingerZero(np.asarray(v["motor_zero_points"], float),
-                                  np.asarray(v["encoder_zero_rad"], float), src))
+            out.append(
+                FingerZero(
+                    np.asarray(v["motor_zero_points"], float),
+                    np.asarray(v["encoder_zero_rad"], float),
+                    src,
+                )
+            )
         else:  # records before motor_zero_points: joint-side zeros (raw * scale / gear)
             gear = np.asarray(UPSTREAM_GEAR)
-            out.append(FingerZero(np.asarray(v["motor_zero_rad"], float) * gear,
-                                  np.asarray(v["encoder_zero_rad"], float), src))
+            out.append(
+                FingerZero(
+                    np.asarray(v["motor_zero_rad"], float) * gear,
+                    np.asarray(v["encoder_zero_rad"], float),
+                    src,
+                )
+            )
     return out[0], out[1]  # type: ignore[return-value]
 
 
@@ -277,16 +293,22 @@ def servo_faults(p: codec.StatePacket, window: list[int], max_temp: float) -> li
     for i, name in enumerate(SERVO_NAMES):
         pos = int(p.dxl_position[i])
         if pos == 0:
-            out.append(f"{name} (motor {i}) reads position 0: it has not answered the board "
-                       "(check its cable and power, then power-cycle the hand)")
+            out.append(
+                f"{name} (motor {i}) reads position 0: it has not answered the board "
+                "(check its cable and power, then power-cycle the hand)"
+            )
         elif not lo <= pos <= hi:
-            out.append(f"{name} (motor {i}) reads position {pos}, outside the firmware's "
-                       f"window {lo}..{hi} around 13000 (check its horn and tendon, then "
-                       "power-cycle the hand)")
+            out.append(
+                f"{name} (motor {i}) reads position {pos}, outside the firmware's "
+                f"window {lo}..{hi} around 13000 (check its horn and tendon, then "
+                "power-cycle the hand)"
+            )
         errs = codec.dxl_error_names(int(p.dxl_error[i]))
         if errs:
-            out.append(f"{name} (motor {i}) reports alarm {', '.join(errs)} (check its load, "
-                       "supply and temperature; power-cycle the hand to clear it)")
+            out.append(
+                f"{name} (motor {i}) reports alarm {', '.join(errs)} (check its load, "
+                "supply and temperature; power-cycle the hand to clear it)"
+            )
         temp = float(p.dxl_temperature[i])
         if temp > max_temp:
             out.append(f"{name} (motor {i}) is at {temp:.0f} C (> {max_temp:g}): let it cool")
@@ -339,7 +361,11 @@ class ReflexTakktileHand(Hand):
             points = np.asarray(DEFAULT_MOTOR_ZERO_POINTS, dtype=np.float64)
         # Joint-side zero (raw * scale / gear), the form the conversions use.
         self.motor_zero = points / self.gear
-        enc = fingers.encoder_zero_rad if fingers is not None and not any(cfg.encoder_zero_rad) else cfg.encoder_zero_rad
+        enc = (
+            fingers.encoder_zero_rad
+            if fingers is not None and not any(cfg.encoder_zero_rad)
+            else cfg.encoder_zero_rad
+        )
         self.encoder_zero = np.asarray(enc, dtype=np.float64)
         self.thresholds = np.asarray(
             cfg.thresholds or [cfg.contact_threshold] * N_SENSORS, dtype=np.float64
@@ -438,8 +464,9 @@ class ReflexTakktileHand(Hand):
         while True:
             left = deadline - time.monotonic()
             try:
-                r = self._wait_reading(seq, max(left, 1e-3), check_stop=False, wait_stale=True,
-                                       check_fault=False)
+                r = self._wait_reading(
+                    seq, max(left, 1e-3), check_stop=False, wait_stale=True, check_fault=False
+                )
             except StreamLostError:
                 if self._latest is not None and self._latest.faults:
                     break
@@ -496,7 +523,8 @@ class ReflexTakktileHand(Hand):
                 log.warning(
                     "ReFlex: hand.zero_on_connect: the fingers are not open (%s rad): not "
                     "zeroed; open the hand and reconnect, or run `%s`",
-                    np.round(r.proximal, 2).tolist(), CALIBRATE_TACTILE,
+                    np.round(r.proximal, 2).tolist(),
+                    CALIBRATE_TACTILE,
                 )
                 return
             self._zero_now(r)
@@ -505,7 +533,9 @@ class ReflexTakktileHand(Hand):
             log.warning(
                 "ReFlex: no tactile calibration for %s: contacts are not reported and "
                 "guarded_close is refused; run `%s` with the hand open (or set "
-                "hand.zero_on_connect = true)", self.device, CALIBRATE_TACTILE,
+                "hand.zero_on_connect = true)",
+                self.device,
+                CALIBRATE_TACTILE,
             )
             return
         if is_open:
@@ -516,7 +546,8 @@ class ReflexTakktileHand(Hand):
                 log.warning(
                     "ReFlex: sensors %s read contact with the hand open at connect: masked "
                     "(never reported) until `%s` is run again",
-                    np.flatnonzero(over).tolist(), CALIBRATE_TACTILE,
+                    np.flatnonzero(over).tolist(),
+                    CALIBRATE_TACTILE,
                 )
 
     def _zero_now(self, r: Reading) -> None:
@@ -528,8 +559,9 @@ class ReflexTakktileHand(Hand):
             seq = r.seq
             rows.append(r.packet.pressures.astype(np.float64))
             ts.append(r.mono)
-        st = TactileSettings(min_samples=min(30, self.cfg.zero_samples),
-                             min_threshold=self.cfg.contact_threshold)
+        st = TactileSettings(
+            min_samples=min(30, self.cfg.zero_samples), min_threshold=self.cfg.contact_threshold
+        )
         fit = fit_tactile(np.asarray(ts), np.stack(rows), st)
         self.set_tactile_calibration(fit.zero, fit.threshold, source="hand.zero_on_connect")
         log.info("ReFlex: tactile zeroed at connect (hand.zero_on_connect), %d packets", len(rows))
@@ -621,8 +653,9 @@ class ReflexTakktileHand(Hand):
         elif self._armed and self.fault is None:
             self._loosen_if_overloaded(r)
         if rearm:
-            threading.Thread(target=self._rearm_after_restart, name="reflex-rearm",
-                             daemon=True).start()
+            threading.Thread(
+                target=self._rearm_after_restart, name="reflex-rearm", daemon=True
+            ).start()
         self._notify()
 
     def _was_armed_once(self) -> bool:
@@ -651,8 +684,11 @@ class ReflexTakktileHand(Hand):
             self._send_goal(goal, motion=False)
             with self._cond:
                 self.counts["overload_loosened"] += 1
-            self.warn("overload", f"ReFlex: motors {np.flatnonzero(over).tolist()} overloaded "
-                      f"({np.round(r.load, 0).tolist()}): loosened")
+            self.warn(
+                "overload",
+                f"ReFlex: motors {np.flatnonzero(over).tolist()} overloaded "
+                f"({np.round(r.load, 0).tolist()}): loosened",
+            )
 
     def _convert(self, p: codec.StatePacket, now: float) -> Reading:
         pressures = p.pressures.astype(np.float64) - self.offsets
@@ -792,8 +828,9 @@ class ReflexTakktileHand(Hand):
         self.motor_zero = np.asarray(motor_zero, dtype=np.float64).copy()
         self.encoder_zero = np.asarray(encoder_zero, dtype=np.float64).copy()
 
-    def set_tactile_calibration(self, zero: np.ndarray, threshold: np.ndarray,
-                                source: str = "") -> None:
+    def set_tactile_calibration(
+        self, zero: np.ndarray, threshold: np.ndarray, source: str = ""
+    ) -> None:
         """Use this tactile zero and thresholds from the next packet on; clears the mask."""
         with self._cond:
             self.offsets = np.asarray(zero, dtype=np.float64).copy()
@@ -832,7 +869,7 @@ class ReflexTakktileHand(Hand):
             )
         return ReflexHandState(
             pressures=r.pressures.copy(),
-            contact=r.contact.copy(),
+            contact=r.contact & ~self.masked,
             finger_angles=r.proximal.copy(),
             preshape=float(r.motor[3]),
             stamp=r.mono,
@@ -846,6 +883,8 @@ class ReflexTakktileHand(Hand):
 
     def open(self) -> None:
         """Spools to 0, preshape unchanged; allowed while stopped (releasing follows a stop)."""
+        if self.fault is not None:
+            raise self.fault
         r = self._latest_or_wait()
         target = np.zeros(4)
         target[3] = self._preshape_target if self._preshape_target is not None else r.motor[3]
@@ -853,6 +892,8 @@ class ReflexTakktileHand(Hand):
         self._wait_arrival(target, range(N_FINGERS), "open", check_stop=False)
 
     def preshape(self, angle: float) -> None:
+        if self.fault is not None:
+            raise self.fault
         self.stop_latch.check("preshape")
         a = float(angle)
         if not 0.0 <= a <= self.cfg.preshape_limit_rad:
@@ -883,6 +924,8 @@ class ReflexTakktileHand(Hand):
                 f"far above the contact threshold): run `{CALIBRATE_TACTILE}` with the hand "
                 "open, or set hand.zero_on_connect = true"
             )
+        if self.fault is not None:
+            raise self.fault
         self.stop_latch.check("guarded close")
         r = self._latest_or_wait()
         # Decide the first step from a packet that arrived after this call: the arm may have
@@ -898,7 +941,7 @@ class ReflexTakktileHand(Hand):
             if time.monotonic() > deadline:
                 self._send_goal(r.motor)
                 raise TimeoutError(f"ReFlex: guarded close took over {cfg.close_timeout_s} s")
-            touching = self._finger_contact(r.contact)
+            touching = self._finger_contact(r.contact & ~self.masked)
             step = close_step(
                 r.motor,
                 step.target,
@@ -916,7 +959,7 @@ class ReflexTakktileHand(Hand):
             r = self._wait_reading(r.seq, cfg.stream_timeout_s)
         self.last_close_reasons = step.reasons
         r = self._wait_reading(r.seq, cfg.stream_timeout_s)  # read at the final pose
-        ids = np.flatnonzero(r.contact)
+        ids = np.flatnonzero(r.contact & ~self.masked)
         sites = kinematics.contact_sites(float(r.motor[3]), r.proximal, r.distal)
         return Grasp(
             sensor_ids=ids,
