@@ -159,12 +159,15 @@ def _serve(a: argparse.Namespace, fingers: object) -> int:
         )
         if a.zero_offset is not None:
             cfg.baselines = [a.zero_offset] * 38
+        zero_points = [
+            round(z * g, 4) for z, g in zip(cfg.motor_zero_rad, cfg.gear_ratio, strict=True)
+        ]
         with TakktileEmulator(cfg, fingers) as emu:
             print(
                 f"reflex-takktile emulator: state to {a.state_to}, commands on "
                 f"{emu.command_address} (the group; unicast dropped on "
                 f"{emu.unicast_address}); hand.motor_zero_points = "
-                f"{[round(z * g, 4) for z, g in zip(cfg.motor_zero_rad, cfg.gear_ratio, strict=False)]}",
+                f"{zero_points}",
                 flush=True,
             )
             done.wait()

@@ -9,6 +9,12 @@ Safety: `stop()` commands every motor to hold at its measured position at once a
 waiting close, which raises `StoppedError` without sending anything more; no state packet
 for `stream_timeout_s` marks the hand stale, commands the motors to hold and makes every
 waiting command raise `StreamLostError` (nothing waits longer than that).
+
+First power-on (issue 23): connecting moves nothing (goals at the measured positions, then
+upstream's VELOCITY -> speeds -> POSITION, once; again only after a board restart); a reading
+that cannot be true (a servo at 0, outside the window, an alarm, too hot) stops the hand with
+an error naming the servo and is never used for a hold; IDLE at disconnect. Without a tactile
+calibration (handed in by `make()`) the hand reports no contacts and refuses to grasp.
 """
 
 from __future__ import annotations
