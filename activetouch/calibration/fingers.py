@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -51,21 +51,43 @@ class FingerSettings:
     reading_timeout_s: float = 0.5
 
 
-@dataclass(frozen=True)
-class MotorReading:
+class MotorReading(Protocol):
     seq: int
     motor: np.ndarray  # (4,) spool angles (fingers) and preshape, rad, driver convention
     proximal: np.ndarray  # (3,) rad
-    load: np.ndarray  # (4,) signed raw
+    load: np.ndarray  # (4,) signed
+
+
+@runtime_checkable
+class FingerCalibratable(Protocol):
+    """What finger calibration needs from a hand driver (the TakkTile driver satisfies it;
+    calibration imports no driver)."""
+
+    inverted: np.ndarray  # (4,)
+    gear: np.ndarray  # (4,)
+    encoder_sign: float
+    motor_zero: np.ndarray  # (4,) joint-side zeros (raw * scale / gear), as configured now
+    encoder_zero: np.ndarray  # (3,)
+
+    def read_motors(self, after_seq: int, timeout_s: float) -> MotorReading: ...
+
+    def command_motors(self, targets: np.ndarray) -> None: ...
+
+    def set_finger_zeros(self, motor_zero: np.ndarray, encoder_zero: np.ndarray) -> None: ...
 
 
 class MotorLink(Protocol):
-    """What finger calibration needs from a driver (a hook the drivers do not expose yet)."""
+    """The link the search runs on (a `HandMotorLink`, or a test double)."""
 
-    inverted: np.ndarray  # (4,)
+    inverted: np.ndarray
+    gear: np.ndarray
     encoder_sign: float
-    motor_zero: np.ndarray  # (4,) rad, as configured now
-    encoder_zero: np.ndarray  # (3,)
+
+    @property
+    def motor_zero(self) -> np.ndarray: ...
+
+    @property
+    def encoder_zero(self) -> np.ndarray: ...
 
     def read(self, after_seq: int, timeout_s: float) -> MotorReading: ...
 
@@ -74,22 +96,19 @@ class MotorLink(Protocol):
     def set_zero(self, motor_zero: np.ndarray, encoder_zero: np.ndarray) -> None: ...
 
 
-class TakktileMotorLink:
-    """`MotorLink` over the ReFlex TakkTile driver. It uses the driver's internals
-    (``_wait_reading``, ``_send``, ``_raw_targets``, the ``motor_zero`` / ``encoder_zero``
-    arrays): the public hook this stands in for is described in docs/calibration.md."""
+class HandMotorLink:
+    """`MotorLink` over any hand driver that is `FingerCalibratable` (public calls only)."""
 
     def __init__(self, hand: Hand) -> None:
-        from activetouch.drivers.reflex.takktile import ReflexTakktileHand
-
-        if not isinstance(hand, ReflexTakktileHand):
+        if not isinstance(hand, FingerCalibratable):
             raise ActiveTouchError(
-                f"finger calibration needs a ReFlex TakkTile hand (proximal encoders); "
-                f"this hand is a {type(hand).__name__}"
+                f"finger calibration needs a hand with proximal encoders and a motor link "
+                f"(a ReFlex TakkTile); this hand is a {type(hand).__name__}"
             )
         self.hand = hand
         self.inverted = np.asarray(hand.inverted, dtype=np.float64)
-        self.encoder_sign = float(hand.cfg.encoder_sign)
+        self.gear = np.asarray(hand.gear, dtype=np.float64)
+        self.encoder_sign = float(hand.encoder_sign)
 
     @property
     def motor_zero(self) -> np.ndarray:
@@ -100,18 +119,13 @@ class TakktileMotorLink:
         return np.asarray(self.hand.encoder_zero, dtype=np.float64).copy()
 
     def read(self, after_seq: int, timeout_s: float) -> MotorReading:
-        r = self.hand._wait_reading(after_seq, timeout_s)
-        return MotorReading(r.seq, r.motor.copy(), r.proximal.copy(), r.load.copy())
+        return self.hand.read_motors(after_seq, timeout_s)
 
     def command(self, targets: np.ndarray) -> None:
-        from activetouch.drivers.reflex import codec
-
-        h = self.hand
-        h._send(codec.encode_set_targets(h._raw_targets(np.asarray(targets, dtype=np.float64))))
+        self.hand.command_motors(np.asarray(targets, dtype=np.float64))
 
     def set_zero(self, motor_zero: np.ndarray, encoder_zero: np.ndarray) -> None:
-        self.hand.motor_zero = np.asarray(motor_zero, dtype=np.float64).copy()
-        self.hand.encoder_zero = np.asarray(encoder_zero, dtype=np.float64).copy()
+        self.hand.set_finger_zeros(motor_zero, encoder_zero)
 
 
 @dataclass
@@ -230,7 +244,7 @@ def calibrate_fingers(
     """Find the finger zeros, (by default) make the driver use them and send the fingers to
     the new open position; the record to store."""
     st = settings or FingerSettings()
-    link = link or TakktileMotorLink(hand)
+    link = link or HandMotorLink(hand)
     before_motor, before_enc = link.motor_zero, link.encoder_zero
     fit = find_finger_zeros(link, st)
     if apply:
@@ -239,10 +253,18 @@ def calibrate_fingers(
         target = r.motor.copy()
         target[:N_FINGERS] = 0.0  # open: tendons just taut
         link.command(target)
+        # Wait for the fingers to get there: the caller may disconnect next (torque off).
+        end = time.monotonic() + st.timeout_s
+        while time.monotonic() < end:
+            r = link.read(r.seq, st.reading_timeout_s)
+            if np.all(np.abs(r.motor[:N_FINGERS]) <= st.arrive_tolerance_rad):
+                break
     rec = CalibrationRecord(
         kind="fingers",
         device=device,
         values={
+            # Servo-side motor radians (hand.motor_zero_points); motor_zero_rad: joint side.
+            "motor_zero_points": [round(float(v), 6) for v in fit.motor_zero * link.gear],
             "motor_zero_rad": [round(float(v), 6) for v in fit.motor_zero],
             "encoder_zero_rad": [round(float(v), 6) for v in fit.encoder_zero],
         },
@@ -267,9 +289,8 @@ def calibrate_fingers(
 
 
 def apply_fingers(hand: Hand, motor_zero: list[float], encoder_zero: list[float]) -> bool:
-    """Make a live TakkTile driver use stored finger zeros; False for other hands."""
-    if hasattr(hand, "motor_zero") and hasattr(hand, "encoder_zero"):
-        hand.motor_zero = np.asarray(motor_zero, dtype=np.float64).copy()  # type: ignore[attr-defined]
-        hand.encoder_zero = np.asarray(encoder_zero, dtype=np.float64).copy()  # type: ignore[attr-defined]
+    """Make a live driver use stored joint-side finger zeros; False for other hands."""
+    if isinstance(hand, FingerCalibratable):
+        hand.set_finger_zeros(np.asarray(motor_zero, float), np.asarray(encoder_zero, float))
         return True
     return False

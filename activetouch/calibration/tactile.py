@@ -219,6 +219,11 @@ def sample_raw(hand: Hand, duration_s: float, poll_s: float = 0.004) -> tuple[np
 def apply_tactile(hand: Hand, zero: np.ndarray, threshold: np.ndarray) -> bool:
     """Make a live driver use these offsets and thresholds (the ReFlex TakkTile driver reads
     them on every packet). False if the hand has no such settings (the twin)."""
+    setter = getattr(hand, "set_tactile_calibration", None)
+    if setter is not None:
+        setter(np.asarray(zero, dtype=np.float64), np.asarray(threshold, dtype=np.float64))
+        wait_new_states(hand, 2)  # readings decoded before now still hold the old zero
+        return True
     if hasattr(hand, "offsets") and hasattr(hand, "thresholds"):
         hand.offsets = np.asarray(zero, dtype=np.float64).copy()  # type: ignore[attr-defined]
         hand.thresholds = np.asarray(threshold, dtype=np.float64).copy()  # type: ignore[attr-defined]

@@ -1,5 +1,19 @@
 """A byte-level stand-in for the ReFlex TakkTile board: state packets at 40 Hz over UDP, command
-packets obeyed, faults on demand.
+packets obeyed, faults on demand. Written from the facts (docs/protocols/reflex.md,
+reflex-ros-pkg firmware ``state.h``, ``enet.c``, ``dmxl.c``), importing nothing from the drivers.
+
+What the real board does and this one too:
+- pressures at rest sit at real baselines (upstream ``tactile_calibrate.yaml``: 56-306 counts),
+  each sensor with its own noise: an uncalibrated driver sees contact everywhere;
+- the Dynamixel fields are zero until the servos answer (`servo_answer_delay_s` after power-up
+  or a restart: the firmware's state is zero-initialised);
+- commands are taken only on the multicast group: here `command_listen` stands for the group
+  (a loopback address) and `unicast_listen` for the board's own address, where commands are
+  counted in `dropped_unicast` and ignored; nothing leaves loopback;
+- IDLE and VELOCITY turn torque off (VELOCITY targets set the moving speed), POSITION turns it
+  on, the servo then drives to its goal register (at power-up: where it is), and every
+  POSITION switch rewrites the angle limits (`angle_limit_writes`, per servo);
+- `restart()` reboots the board: clock back to 0, IDLE, servos unanswered again.
 
 It packs and parses bytes with its own code written from the published layout (offsets below,
 from reflex-ros-pkg ``firmware/reflex-takktile/state.h``), never with the driver's codec, so a
@@ -99,10 +113,26 @@ class Faults:
     stuck_saturated: list[int] = field(default_factory=list)  # sensor ids reading 65535
 
 
+# Unloaded raw readings of a real hand (reflex_driver/yaml/tactile_calibrate.yaml, f1 = pointer
+# = sensors 0-8, f2 = middle = 9-17, f3 = thumb = 18-26); the palm is not in that file.
+UPSTREAM_BASELINES = (
+    [133, 121, 125, 117, 153, 153, 149, 166, 132]
+    + [127, 129, 136, 130, 154, 154, 160, 91, 156]
+    + [137, 111, 156, 161, 148, 306, 66, 148, 56]
+    + [180] * 11
+)
+
+
 @dataclass
 class EmulatorConfig:
     state_to: str = "127.0.0.1:11333"  # where state packets go (the driver's state_listen)
-    command_listen: str = "127.0.0.1:11334"  # where commands are taken (driver's command_to)
+    # The board's multicast group, played by a loopback address: commands are taken here.
+    command_listen: str = "127.0.0.2:11334"
+    # The board's own (unicast) address: commands sent here are counted and dropped. Same port
+    # as command_listen when its port is 0. Empty: no unicast socket.
+    unicast_listen: str = "127.0.0.1:0"
+    servo_answer_delay_s: float = 0.0  # Dynamixel fields read 0 until then (and after restart)
+    mute_servos: list[int] = field(default_factory=list)  # servos that never answer
     rate_hz: float = 40.0
     seed: int = 0
     # The hand's own calibration, as the driver must be configured to match.
@@ -112,8 +142,8 @@ class EmulatorConfig:
     motor_zero_rad: tuple[float, ...] = (56.0, 57.0, 55.5, 53.0)
     encoder_zero_rad: tuple[float, ...] = (0.0, 0.0, 0.0)
     encoder_sign: float = -1.0
-    zero_offsets: list[float] = field(default_factory=list)  # by sensor id; empty: 0
-    noise_std: float = 0.0  # raw units
+    baselines: list[float] = field(default_factory=lambda: list(UPSTREAM_BASELINES))
+    noise_std: float | list[float] = 1.0  # raw units, one for all or one per sensor
     max_speed_rad_s: float = 6.0  # servo slew, joint side
     faults: Faults = field(default_factory=Faults)
 
@@ -130,6 +160,9 @@ def pack_state(
     positions: np.ndarray,
     loads: np.ndarray,
     speeds: np.ndarray | None = None,
+    answered: list[bool] | None = None,
+    dxl_error: list[int] | None = None,
+    dxl_temperature: list[int] | None = None,
 ) -> bytes:
     """A 202-byte state packet, filled field by field at the published offsets."""
     buf = bytearray(PACKET_LEN)
@@ -149,8 +182,11 @@ def pack_state(
         spd = 0 if speeds is None else int(speeds[i])
         struct.pack_into("<H", buf, OFF_DXL_SPEED + 2 * i, spd)
         struct.pack_into("<H", buf, OFF_DXL_LOAD + 2 * i, int(loads[i]))
+        if answered is not None and not answered[i]:
+            continue  # zero-initialised until the servo answers
+        buf[OFF_DXL_ERROR + i] = 0 if dxl_error is None else int(dxl_error[i]) & 0xFF
         buf[OFF_DXL_VOLT + i] = 120  # 12.0 V
-        buf[OFF_DXL_TEMP + i] = 35
+        buf[OFF_DXL_TEMP + i] = 35 if dxl_temperature is None else int(dxl_temperature[i])
     return bytes(buf)
 
 
@@ -177,16 +213,26 @@ class TakktileEmulator:
         self.gear = np.asarray(cfg.gear_ratio, dtype=np.float64)
         self.inv = np.asarray(cfg.motor_inverted, dtype=np.float64)
         self.mzero = np.asarray(cfg.motor_zero_rad, dtype=np.float64)
-        self.offsets = np.asarray(cfg.zero_offsets or [0.0] * 38, dtype=np.float64)
+        self.baselines = np.asarray(cfg.baselines, dtype=np.float64)
+        self.noise = np.broadcast_to(np.asarray(cfg.noise_std, dtype=np.float64), (38,)).copy()
         self.spool = np.zeros(3)  # joint-side spool angles
         self.preshape = 0.0
-        self.goal = np.zeros(4)
+        self.goal: np.ndarray | None = None  # goal registers (joint side); None: unanswered
         self.velocity = np.zeros(4)
+        self.speed_reg = [0, 0, 0, 0]  # moving speed registers (VELOCITY-mode targets)
         self.modes = [0, 0, 0, 0]
         self.commands: list[tuple[str, list[int]]] = []  # every command obeyed, in order
         self.raw_commands: list[bytes] = []
+        self.mode_switches: dict[int, int] = {0: 0, 1: 0, 2: 0}  # set-mode packets by mode
+        self.angle_limit_writes = [0, 0, 0, 0]  # per servo, one per POSITION switch
+        self.dropped_unicast = 0
         self.ignored = 0
         self.sent = 0
+        self.restarts = 0
+        self._boot = time.monotonic()
+        self.extra_load = np.zeros(4)  # added load magnitude (tests: an overloaded servo)
+        self.dxl_error = [0, 0, 0, 0]
+        self.dxl_temperature = [35, 35, 35, 35]
         self._held: bytes | None = None
         self._delayed: list[tuple[float, bytes]] = []
         self._lock = threading.Lock()
@@ -197,11 +243,48 @@ class TakktileEmulator:
         self._rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._rx.bind(_addr(cfg.command_listen))
         self._rx.setblocking(False)
+        self._uni: socket.socket | None = None
+        uhost = _addr(cfg.unicast_listen)[0] if cfg.unicast_listen else ""
+        if uhost and uhost != self._rx.getsockname()[0]:  # same address: no unicast socket
+            host, port = _addr(cfg.unicast_listen)
+            self._uni = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            self._uni.bind((host, port or self.command_port))
+            self._uni.setblocking(False)
         self._tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
     @property
     def command_port(self) -> int:
         return self._rx.getsockname()[1]
+
+    @property
+    def command_address(self) -> str:
+        """host:port of "the group" (where a driver must send commands)."""
+        host, port = self._rx.getsockname()[:2]
+        return f"{host}:{port}"
+
+    @property
+    def unicast_address(self) -> str:
+        if self._uni is None:
+            return ""
+        host, port = self._uni.getsockname()[:2]
+        return f"{host}:{port}"
+
+    def position_switches(self) -> int:
+        with self._lock:
+            return self.mode_switches[2]
+
+    def restart(self) -> None:
+        """Reboot the board: clock from 0, IDLE, servo fields zero until they answer again."""
+        with self._lock:
+            self._t0 = self._boot = time.monotonic()
+            self.modes = [0, 0, 0, 0]
+            self.goal = None
+            self.restarts += 1
+
+    def answered(self, i: int) -> bool:
+        if i in self.cfg.mute_servos:
+            return False
+        return time.monotonic() - self._boot >= self.cfg.servo_answer_delay_s
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -217,6 +300,8 @@ class TakktileEmulator:
             self._thread.join(timeout=2.0)
             self._thread = None
         self._rx.close()
+        if self._uni is not None:
+            self._uni.close()
         self._tx.close()
 
     def __enter__(self) -> TakktileEmulator:
@@ -240,6 +325,13 @@ class TakktileEmulator:
             time.sleep(max(0.0, next_t - time.monotonic()))
 
     def _read_commands(self) -> None:
+        while self._uni is not None:
+            try:
+                self._uni.recv(2048)
+            except (BlockingIOError, OSError):
+                break
+            with self._lock:
+                self.dropped_unicast += 1  # the firmware accepts only its multicast group
         while True:
             try:
                 data = self._rx.recv(2048)
@@ -254,23 +346,38 @@ class TakktileEmulator:
                 self.commands.append(cmd)
                 kind, vals = cmd
                 if kind == "mode":
-                    self.modes = [v if v in (0, 1, 2) else 0 for v in vals]
+                    self._set_modes(vals)
                     continue
                 for i, v in enumerate(vals):
-                    if self.modes[i] == 2:
+                    if self.modes[i] == 1:  # VELOCITY: moving speed register, torque off
+                        self.speed_reg[i] = v
+                    elif self.goal is not None and self.answered(i):
+                        # IDLE and POSITION write the goal register (torque only in POSITION).
                         self.goal[i] = self.inv[i] * (v * POS_TICK / self.gear[i] - self.mzero[i])
-                    elif self.modes[i] == 1:  # speed 0..1023, +1024 reverse (MX-28 units)
-                        sign = -1.0 if v & 0x400 else 1.0
-                        self.velocity[i] = self.inv[i] * sign * (v & 0x3FF) * 0.01194
+
+    def _set_modes(self, vals: list[int]) -> None:
+        modes = [v if v in (0, 1, 2) else 0 for v in vals]
+        for m in set(modes):
+            self.mode_switches[m] += 1
+        for i, m in enumerate(modes):
+            if m == 2:
+                self.angle_limit_writes[i] += 1  # dmxl_set_angle_limits on every switch
+        self.modes = modes
 
     def _advance(self, dt: float) -> None:
-        step = self.cfg.max_speed_rad_s * dt
         pos = np.append(self.spool, self.preshape)
+        if self.goal is None:
+            if all(self.answered(i) for i in range(4)):
+                self.goal = pos.copy()  # at power-up a servo's goal is where it is
+            return
         for i in range(4):
-            if self.modes[i] == 2:
-                pos[i] += float(np.clip(self.goal[i] - pos[i], -step, step))
-            elif self.modes[i] == 1:
-                pos[i] += float(np.clip(self.velocity[i] * dt, -step, step))
+            if self.modes[i] != 2:
+                continue  # torque off
+            speed = self.cfg.max_speed_rad_s
+            if self.speed_reg[i] & 0x3FF:  # moving speed set: 0.01194 rad/s per unit, motor side
+                speed = min(speed, (self.speed_reg[i] & 0x3FF) * 0.01194 / self.gear[i])
+            step = speed * dt
+            pos[i] += float(np.clip(self.goal[i] - pos[i], -step, step))
         stall = self.fingers.stall_spool()
         self.spool = np.clip(pos[:3], 0.0, stall)
         self.preshape = float(np.clip(pos[3], 0.0, 1.75))
@@ -282,9 +389,9 @@ class TakktileEmulator:
         # the object): the servo is where it stalled.
         self.spool = np.minimum(self.spool, self.fingers.stall_spool())
         prox, _ = self.fingers.joints(self.spool, self.preshape)
-        raw = self.offsets + force
-        if cfg.noise_std > 0:
-            raw = raw + self.np_rng.normal(0.0, cfg.noise_std, 38)
+        raw = self.baselines + force
+        if np.any(self.noise > 0):
+            raw = raw + self.np_rng.normal(0.0, 1.0, 38) * self.noise
         raw = np.clip(np.rint(raw), 0, 0xFFFF)
         raw[self.faults.stuck_zero] = 0
         raw[self.faults.stuck_saturated] = 0xFFFF
@@ -292,12 +399,25 @@ class TakktileEmulator:
         enc = (prox / cfg.encoder_sign + np.asarray(cfg.encoder_zero_rad)) / ENC_TICK
         joint = np.append(self.spool, self.preshape)
         pos = (self.inv * joint + self.mzero) * self.gear / POS_TICK
-        # Load against closing grows once a finger presses: bit 10 set = positive for inv +1.
+        # Load grows once a finger presses. Closing load is positive on the host side, which
+        # reads raw > 1023 as +(raw - 1023) and raw <= 1023 as -raw, times the inversion.
         press = np.append(np.maximum(0.0, self.spool - self._contact()), 0.0)
-        mag = np.minimum(1023, np.rint(press * 1500.0)).astype(int)
-        loads = [m | 0x400 if self.inv[i] > 0 else m for i, m in enumerate(mag)]
+        mag = np.minimum(1023, np.rint(press * 1500.0) + self.extra_load).astype(int)
+        loads = [int(m) + 1023 if self.inv[i] > 0 and m else int(m) for i, m in enumerate(mag)]
+        answered = [self.answered(i) for i in range(4)]
+        pos = np.where(answered, np.rint(pos), 0)
+        loads = [v if a else 0 for v, a in zip(loads, answered, strict=True)]
         systime = int((time.monotonic() - self._t0) * 1e6)
-        return pack_state(systime, raw, np.rint(enc), np.rint(pos), loads)
+        return pack_state(
+            systime,
+            raw,
+            np.rint(enc),
+            pos,
+            loads,
+            answered=answered,
+            dxl_error=self.dxl_error,
+            dxl_temperature=self.dxl_temperature,
+        )
 
     def _contact(self) -> np.ndarray:
         c = getattr(self.fingers, "contact_spool", None)

@@ -28,7 +28,23 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="activetouch emulate", description=__doc__.split("\n")[0])
     p.add_argument("hand", choices=["reflex-takktile", "reflex-sf"])
     p.add_argument("--state-to", default="127.0.0.1:11333", help="driver's hand.state_listen")
-    p.add_argument("--command-listen", default="127.0.0.1:11334", help="driver's hand.command_to")
+    p.add_argument(
+        "--command-listen",
+        default="127.0.0.2:11334",
+        help="the board's multicast group, played by a loopback address: the driver's "
+        "hand.command_to (commands elsewhere are dropped, as the firmware drops unicast)",
+    )
+    p.add_argument(
+        "--unicast-listen",
+        default="127.0.0.1:0",
+        help="the board's own address: commands sent here are counted and dropped",
+    )
+    p.add_argument(
+        "--answer-delay-s",
+        type=float,
+        default=0.5,
+        help="servo fields read 0 until the servos answer, this long after start",
+    )
     p.add_argument("--rate-hz", type=float, default=40.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument(
@@ -39,8 +55,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar=("F0", "F1", "F2"),
         help="spool angle where each finger meets the object",
     )
-    p.add_argument("--noise-std", type=float, default=0.0)
-    p.add_argument("--zero-offset", type=float, default=0.0, help="raw zero of every sensor")
+    p.add_argument("--noise-std", type=float, default=1.0, help="per-sensor noise, counts")
+    p.add_argument(
+        "--zero-offset",
+        type=float,
+        default=None,
+        help="raw unloaded reading of every sensor (default: a real hand's, 56-306 counts)",
+    )
     for name in ("loss", "duplicate", "reorder", "corrupt", "truncate"):
         p.add_argument(f"--{name}", type=float, default=0.0, help=f"fraction of packets ({name})")
     p.add_argument("--delay-s", type=float, default=0.0)
@@ -129,20 +150,32 @@ def _serve(a: argparse.Namespace, fingers: object) -> int:
         cfg = EmulatorConfig(
             state_to=a.state_to,
             command_listen=a.command_listen,
+            unicast_listen=a.unicast_listen,
+            servo_answer_delay_s=a.answer_delay_s,
             rate_hz=a.rate_hz,
             seed=a.seed,
             noise_std=a.noise_std,
-            zero_offsets=[a.zero_offset] * 38,
             faults=faults,
         )
+        if a.zero_offset is not None:
+            cfg.baselines = [a.zero_offset] * 38
+        zero_points = [
+            round(z * g, 4) for z, g in zip(cfg.motor_zero_rad, cfg.gear_ratio, strict=True)
+        ]
         with TakktileEmulator(cfg, fingers) as emu:
             print(
                 f"reflex-takktile emulator: state to {a.state_to}, commands on "
-                f"{a.command_listen}; motor_zero_rad = {list(cfg.motor_zero_rad)}",
+                f"{emu.command_address} (the group; unicast dropped on "
+                f"{emu.unicast_address}); hand.motor_zero_points = "
+                f"{zero_points}",
                 flush=True,
             )
             done.wait()
-            print(f"sent {emu.sent} packets, obeyed {len(emu.commands)} commands", flush=True)
+            print(
+                f"sent {emu.sent} packets, obeyed {len(emu.commands)} commands, dropped "
+                f"{emu.dropped_unicast} unicast, {emu.mode_switches[2]} POSITION switches",
+                flush=True,
+            )
     else:
         from activetouch.emulators.reflex_sf import SFEmulator, SFEmulatorConfig, SFFaults
 

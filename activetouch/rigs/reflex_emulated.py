@@ -54,7 +54,7 @@ class TwinEmulatedHand(ReflexTakktileHand):
     def __init__(
         self, cfg: ReflexTakktileConfig, emulator: TakktileEmulator, fingers: TwinFingers
     ) -> None:
-        super().__init__(cfg)
+        super().__init__(cfg, device=cfg.serial or cfg.type)
         self.emulator, self.fingers = emulator, fingers
 
     def open(self) -> None:
@@ -89,7 +89,12 @@ def make_twin_emulated(cfg: ReflexTakktileConfig, ctx: DeviceContext) -> TwinEmu
     # The emulated fingers are the twin's: its threshold for "the pads feel it", its tendon
     # travel (the servo cannot turn further), its coupling.
     fingers = TwinFingers(rig.world, rig.hand, spool_limit=sim.spool_limit_rad, gated=True)
-    motor_zero = list(cfg.motor_zero_rad) if any(cfg.motor_zero_rad) else list(EMULATED_MOTOR_ZERO)
+    gear = list(cfg.gear_ratio)
+    motor_zero = (
+        [z / g for z, g in zip(cfg.motor_zero_points, gear, strict=True)]
+        if cfg.motor_zero_points
+        else list(EMULATED_MOTOR_ZERO)
+    )
     encoder_zero = (
         list(cfg.encoder_zero_rad) if any(cfg.encoder_zero_rad) else list(EMULATED_ENCODER_ZERO)
     )
@@ -98,14 +103,14 @@ def make_twin_emulated(cfg: ReflexTakktileConfig, ctx: DeviceContext) -> TwinEmu
     emu = TakktileEmulator(
         EmulatorConfig(
             state_to=f"127.0.0.1:{state_port}",
-            command_listen="127.0.0.1:0",
+            command_listen="127.0.0.2:0",  # "the group": the driver must send here
             seed=sim.seed,
             gear_ratio=tuple(cfg.gear_ratio),
             motor_inverted=tuple(cfg.motor_inverted),
             motor_zero_rad=tuple(motor_zero),
             encoder_zero_rad=tuple(encoder_zero),
             encoder_sign=cfg.encoder_sign,
-            zero_offsets=offsets,
+            baselines=offsets,
             noise_std=0.0,  # the twin's tactile model has its own noise
             faults=Faults(loss=cfg.emulate_loss),
         ),
@@ -115,12 +120,12 @@ def make_twin_emulated(cfg: ReflexTakktileConfig, ctx: DeviceContext) -> TwinEmu
     driver_cfg = dataclasses.replace(
         cfg,
         state_listen=f"127.0.0.1:{state_port}",
-        command_to=f"127.0.0.1:{emu.command_port}",
+        command_to=emu.command_address,
         multicast_group="",
         interface="",
-        motor_zero_rad=motor_zero,
+        motor_zero_points=[z * g for z, g in zip(motor_zero, gear, strict=True)],
         encoder_zero_rad=encoder_zero,
-        zero_offsets=offsets,
+        zero_offsets=offsets,  # the emulated board's baselines are known: calibrated
         # The emulated servo stops at the twin's travel limit; a driver set further would
         # wait for a stall there instead.
         spool_limit_rad=min(cfg.spool_limit_rad, sim.spool_limit_rad),

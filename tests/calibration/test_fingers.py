@@ -22,6 +22,7 @@ from .board import free_udp_port
 TRUE_MOTOR_ZERO = (56.0, 57.0, 55.5, 53.0)
 TRUE_ENCODER_ZERO = (1.0, 2.0, 0.5)
 INVERTED = (1, -1, 1, -1)
+GEAR = (1.42, 1.42, 1.42, 1.5)
 
 
 class SlackFingers:
@@ -52,7 +53,7 @@ def run(slack, zero_error, contact=(math.inf,) * 3, settings=None):
             command_listen=f"127.0.0.1:{cmd_port}",
             motor_zero_rad=TRUE_MOTOR_ZERO,
             encoder_zero_rad=TRUE_ENCODER_ZERO,
-            zero_offsets=[400.0] * 38,
+            baselines=[400.0] * 38,
             noise_std=1.0,
         ),
         SlackFingers(slack, KinematicFingers(contact_spool=list(contact))),
@@ -62,7 +63,9 @@ def run(slack, zero_error, contact=(math.inf,) * 3, settings=None):
         state_listen=f"127.0.0.1:{state_port}",
         command_to=f"127.0.0.1:{cmd_port}",
         multicast_group="",
-        motor_zero_rad=[z + e for z, e in zip(TRUE_MOTOR_ZERO, zero_error, strict=True)],
+        motor_zero_points=[
+            (z + e) * g for z, e, g in zip(TRUE_MOTOR_ZERO, zero_error, GEAR, strict=True)
+        ],
         encoder_zero_rad=[0.0, 0.0, 0.0],
         zero_offsets=[400.0] * 38,
     )

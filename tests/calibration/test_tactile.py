@@ -112,7 +112,8 @@ def _driver(state_port, command_port, **kw):
     return ReflexTakktileHand(cfg)
 
 
-MOTOR_ZERO = (56.0, 57.0, 55.5, 53.0)
+MOTOR_ZERO = (56.0, 57.0, 55.5, 53.0)  # joint side
+GEAR = (1.42, 1.42, 1.42, 1.5)
 
 
 @pytest.fixture
@@ -127,7 +128,7 @@ def emulated(request):
             state_to=f"127.0.0.1:{state_port}",
             command_listen=f"127.0.0.1:{cmd_port}",
             motor_zero_rad=MOTOR_ZERO,
-            zero_offsets=offsets.tolist(),
+            baselines=offsets.tolist(),
             noise_std=2.0,
             seed=3,
             faults=Faults(stuck_zero=[8], stuck_saturated=[33]),
@@ -136,7 +137,11 @@ def emulated(request):
             contact_spool=[0.6, 0.6, 0.6], contact_sensors=[[2, 3], [11, 12], [20, 21]]
         ),
     ).start()
-    hand = _driver(state_port, cmd_port, motor_zero_rad=list(MOTOR_ZERO))
+    hand = _driver(
+        state_port,
+        cmd_port,
+        motor_zero_points=[z * g for z, g in zip(MOTOR_ZERO, GEAR, strict=True)],
+    )
     hand.connect()
     yield emu, hand, offsets
     hand.disconnect()

@@ -134,6 +134,31 @@ def encode_set_targets(targets: tuple[int, ...] | list[int]) -> bytes:
     return bytes([CMD_SET_TARGETS]) + struct.pack(">4H", *(int(t) for t in targets))
 
 
+def is_restart(systime_us: int, last_us: int | None, restart_us: int = 1_000_000) -> bool:
+    """Whether `systime_us` after `last_us` means the board restarted (its clock went back by
+    more than `restart_us`): it comes back in IDLE with its servo state zero-initialised."""
+    if last_us is None:
+        return False
+    back = (last_us - systime_us) % (1 << 32)
+    return 0 < back < (1 << 31) and back > restart_us
+
+
+# Dynamixel error byte bits (MX-28 status packet), lowest first.
+DXL_ERROR_BITS = (
+    "input voltage",
+    "angle limit",
+    "overheating",
+    "range",
+    "checksum",
+    "overload",
+    "instruction",
+)
+
+
+def dxl_error_names(err: int) -> list[str]:
+    return [name for b, name in enumerate(DXL_ERROR_BITS) if int(err) & (1 << b)]
+
+
 def is_newer(systime_us: int, last_us: int | None, restart_us: int = 1_000_000) -> bool:
     """Whether a packet stamped `systime_us` follows one stamped `last_us` (uint32 µs, wraps
     after 71 min). Equal is a duplicate; a small step back is a reordered packet; a step back

@@ -11,8 +11,15 @@ from activetouch.emulators.reflex_takktile import (
     TakktileEmulator,
 )
 
-MOTOR_ZERO = [56.0, 57.0, 55.5, 53.0]
+MOTOR_ZERO = [56.0, 57.0, 55.5, 53.0]  # joint side (raw * scale / gear)
+GEAR = [1.42, 1.42, 1.42, 1.5]
 ENCODER_ZERO = [1.0, 2.0, 0.5]
+GROUP = "127.0.0.2"  # the loopback address that plays the board's multicast group
+
+
+def zero_points(joint_zero: list[float]) -> list[float]:
+    """hand.motor_zero_points (servo-side motor rad) of joint-side zeros."""
+    return [z * g for z, g in zip(joint_zero, GEAR, strict=True)]
 
 
 def free_udp_port() -> int:
@@ -23,13 +30,16 @@ def free_udp_port() -> int:
     return port
 
 
-def driver_config(state_port: int, command_port: int, **kw) -> ReflexTakktileConfig:
-    kw.setdefault("motor_zero_rad", list(MOTOR_ZERO))
+def driver_config(
+    state_port: int, command_port: int, command_host: str = GROUP, **kw
+) -> ReflexTakktileConfig:
+    kw.setdefault("motor_zero_points", zero_points(kw.pop("motor_zero_rad", MOTOR_ZERO)))
     kw.setdefault("encoder_zero_rad", list(ENCODER_ZERO))
+    kw.setdefault("mode_switch_sleep_s", 0.005)
     return ReflexTakktileConfig(
         type="reflex-takktile",
         state_listen=f"127.0.0.1:{state_port}",
-        command_to=f"127.0.0.1:{command_port}",
+        command_to=f"{command_host}:{command_port}",
         multicast_group="",
         **kw,
     )
@@ -46,10 +56,10 @@ def emulator(ports):
     emu = TakktileEmulator(
         EmulatorConfig(
             state_to=f"127.0.0.1:{state_port}",
-            command_listen=f"127.0.0.1:{command_port}",
+            command_listen=f"{GROUP}:{command_port}",
             motor_zero_rad=tuple(MOTOR_ZERO),
             encoder_zero_rad=tuple(ENCODER_ZERO),
-            zero_offsets=[300.0 + 10 * i for i in range(38)],
+            baselines=[300.0 + 10 * i for i in range(38)],
             noise_std=1.0,
         ),
         KinematicFingers(contact_spool=[1.0, 1.5, float("inf")]),

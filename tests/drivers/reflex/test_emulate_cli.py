@@ -33,7 +33,13 @@ def driver_close(state_port: int, command_port: int) -> tuple[Grasp, tuple[str, 
     """One guarded close (then open) by the driver against the emulator: the grasp and each
     finger's stop reason."""
     hand = ReflexTakktileHand(
-        driver_config(state_port, command_port, motor_zero_rad=ZERO, encoder_zero_rad=[0.0] * 3)
+        driver_config(
+            state_port,
+            command_port,
+            motor_zero_rad=ZERO,
+            encoder_zero_rad=[0.0] * 3,
+            zero_on_connect=True,  # the emulator sits at a real hand's baselines
+        )
     )
     hand.connect()
     try:
@@ -48,7 +54,7 @@ def driver_close(state_port: int, command_port: int) -> tuple[Grasp, tuple[str, 
 def test_emulator_process_serves_the_driver():
     sp, cp = free_udp_port(), free_udp_port()
     argv = [sys.executable, "-m", "activetouch.rigs.emulate", "reflex-takktile"]
-    argv += ["--state-to", f"127.0.0.1:{sp}", "--command-listen", f"127.0.0.1:{cp}"]
+    argv += ["--state-to", f"127.0.0.1:{sp}", "--command-listen", f"127.0.0.2:{cp}"]
     argv += ["--contact-spool", "0.5", "0.5", "0.5"]
     with emulator_process(argv, wait_s=5):
         g, reasons = driver_close(sp, cp)
@@ -61,7 +67,7 @@ def test_twin_backed_emulator_process_closes_on_the_object(trained_home):
     twin's, so the driver's close stops on the sphere and feels it."""
     sp, cp = free_udp_port(), free_udp_port()
     argv = [sys.executable, "-m", "activetouch", "emulate", "reflex-takktile"]
-    argv += ["--state-to", f"127.0.0.1:{sp}", "--command-listen", f"127.0.0.1:{cp}"]
+    argv += ["--state-to", f"127.0.0.1:{sp}", "--command-listen", f"127.0.0.2:{cp}"]
     argv += ["--object", "sphere", "--data", str(trained_home)]
     with emulator_process(argv, wait_s=10):
         g, reasons = driver_close(sp, cp)

@@ -16,7 +16,7 @@ from activetouch.drivers.reflex.common import StreamLostError
 from activetouch.drivers.reflex.takktile import ReflexTakktileHand
 from activetouch.errors import ConfigError, StoppedError
 
-from .conftest import MOTOR_ZERO, driver_config, free_udp_port
+from .conftest import GROUP, MOTOR_ZERO, driver_config, free_udp_port
 from .packets import state_packet
 
 TICK = 4 * 2 * math.pi / 4095
@@ -29,7 +29,7 @@ class Board:
     def __init__(self) -> None:
         self.state_port = free_udp_port()
         self.cmd = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.cmd.bind(("127.0.0.1", 0))
+        self.cmd.bind((GROUP, 0))
         self.cmd.settimeout(1.0)
         self.tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.systime = 0
@@ -92,13 +92,17 @@ def test_independent_packets_and_open_command_bytes(board):
         assert s.pressures[4] == 21 and s.pressures[18] == 20 and s.pressures[30] == 100
         assert np.flatnonzero(s.contact).tolist() == [4, 30]
         assert np.allclose(s.motor, 0.0, atol=TICK)
-        # connect: hold targets, then position mode.
-        assert board.cmd.recv(64)[:1] == b"\x02"
-        assert board.cmd.recv(64) == bytes([1, 2, 2, 2, 2])
-        hand.open()
-        assert board.cmd.recv(64) == bytes([1, 2, 2, 2, 2])
-        targets = board.cmd.recv(64)
         raw = at_rest_positions()
+        hold = b"\x02" + b"".join(int(v).to_bytes(2, "big") for v in raw)
+        # connect (upstream's start): goals where the servos are, VELOCITY, speeds, POSITION.
+        assert board.cmd.recv(64) == hold
+        assert board.cmd.recv(64) == bytes([1, 1, 1, 1, 1])
+        # 3.0 rad/s * 1.42 / 0.01194 = 356, 2.0 * 1.5 / 0.01194 = 251; +1024 when inverted.
+        speeds = (356, 356 + 1024, 356, 251 + 1024)
+        assert board.cmd.recv(64) == b"\x02" + b"".join(v.to_bytes(2, "big") for v in speeds)
+        assert board.cmd.recv(64) == bytes([1, 2, 2, 2, 2])
+        hand.open()  # no mode switch before a command
+        targets = board.cmd.recv(64)
         expect = b"\x02" + b"".join(int(v).to_bytes(2, "big") for v in raw)
         assert targets == expect
     finally:

@@ -9,7 +9,7 @@ import pytest
 from activetouch.drivers.reflex.takktile import ReflexTakktileHand
 from activetouch.emulators.reflex_takktile import EmulatorConfig, TakktileEmulator
 
-from .conftest import driver_config, free_udp_port
+from .conftest import GROUP, driver_config, free_udp_port
 
 pytest.importorskip("pybullet")
 
@@ -33,9 +33,14 @@ def test_driver_on_twin_backed_emulator_matches_twin():
     try:
         direct = SimHand(w_direct).guarded_close()
         sp, cp = free_udp_port(), free_udp_port()
-        cfg = EmulatorConfig(state_to=f"127.0.0.1:{sp}", command_listen=f"127.0.0.1:{cp}")
+        # The twin's tactile model has its own noise: the board adds only its baselines.
+        cfg = EmulatorConfig(
+            state_to=f"127.0.0.1:{sp}", command_listen=f"{GROUP}:{cp}", noise_std=0.0
+        )
         with TakktileEmulator(cfg, TwinFingers(w_emu)):
-            hand = ReflexTakktileHand(driver_config(sp, cp, encoder_zero_rad=[0.0] * 3))
+            hand = ReflexTakktileHand(
+                driver_config(sp, cp, encoder_zero_rad=[0.0] * 3, zero_on_connect=True)
+            )
             hand.connect()
             try:
                 g = hand.guarded_close()
