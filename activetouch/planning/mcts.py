@@ -54,6 +54,7 @@ caller's ``numpy.random.Generator`` — equal generator states give equal trees.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -70,7 +71,7 @@ from activetouch.planning.simulated_belief import (
     scores_add,
     scores_init,
 )
-from activetouch.recognition.classifiers import ClassifierKernel
+from activetouch.recognition.kernels import ClassifierKernel
 
 # Draws before a uniform pick among the remaining edges falls back to a full scan.
 _REJECTION_TRIES = 32
@@ -78,6 +79,34 @@ _REJECTION_TRIES = 32
 # The recognition term of Eq. 1 (`planner.objective`), as the compiled loop takes it.
 OBJECTIVE_CODES = {"final": 0, "anytime": 1, "info_gain": 2}
 _FINAL, _ANYTIME, _INFO_GAIN = 0, 1, 2
+
+
+class ModelArrays(NamedTuple):
+    """The observation model as the compiled code reads it, by field name (numba lays a
+    NamedTuple out like a plain tuple, so names cost nothing at run time). `model_arrays`
+    builds it."""
+
+    edge_ptr: np.ndarray  # (P + 1,) int64: pose p's edges are edge_ptr[p] .. edge_ptr[p + 1]
+    edge_action: np.ndarray  # (E,) int32 (int64 for a model too large for int32)
+    edge_target: np.ndarray  # (E,) likewise
+    edge_cost: np.ndarray  # (E,) float64 c_m per edge; empty: the action's (`action_cost`)
+    out_cell: np.ndarray  # (O,) int64 conditioning cell each outcome leaves
+    out_ptr: np.ndarray  # (O + 1,) int64 into out_bin
+    out_bin: np.ndarray  # int64 histogram bin of each outcome's triangles
+    # Eq. 4 looks rows up by (action, cell, class) and (action, class): the model's keys
+    # re-keyed so (`rows_by_action`), ascending int64, with the row each points to.
+    tally_key: np.ndarray
+    tally_row: np.ndarray
+    tally_ptr: np.ndarray
+    tally_out: np.ndarray
+    tally_cum: np.ndarray
+    marg_key: np.ndarray
+    marg_row: np.ndarray
+    marg_ptr: np.ndarray
+    marg_out: np.ndarray
+    marg_cum: np.ndarray
+    n_cells: np.int64
+    action_cost: np.ndarray  # (A,) float64
 
 
 # --------------------------------------------------------------------------------------------
@@ -164,7 +193,7 @@ def _tempered(p: np.ndarray, inv_temp: float) -> np.ndarray:
 
 @njit(cache=True)
 def _sample_outcome(
-    m: tuple,
+    m: ModelArrays,
     kern: tuple,
     action: int,
     cell: int,
@@ -182,10 +211,10 @@ def _sample_outcome(
     without data cannot make another class's observation look certain.
     `inv_temp`: 1 / planner.belief_temperature; below 1 the class is drawn from a flattened
     p(y|h)^inv_temp (see `_tempered`)."""
-    tkey, tally_ptr, tally_out, tally_cum = m[7], m[8], m[9], m[10]
-    mkey, marg_ptr, marg_out, marg_cum = m[11], m[12], m[13], m[14]
-    n_cells = m[16]
-    trow, mrow = m[17], m[18]
+    tkey, tally_ptr, tally_out, tally_cum = m.tally_key, m.tally_ptr, m.tally_out, m.tally_cum
+    mkey, marg_ptr, marg_out, marg_cum = m.marg_key, m.marg_ptr, m.marg_out, m.marg_cum
+    n_cells = m.n_cells
+    trow, mrow = m.tally_row, m.marg_row
     n_classes = kern[7]
     if per_class:
         p = _tempered(proba_scores(kern, hist, S), inv_temp)
@@ -249,7 +278,7 @@ def _sample_outcome(
 
 @njit(cache=True)
 def _observe(
-    m: tuple,
+    m: ModelArrays,
     kern: tuple,
     action: int,
     cell: int,
@@ -264,9 +293,8 @@ def _observe(
     o = _sample_outcome(m, kern, action, cell, hist, S, counters, per_class, inv_temp)
     if o < 0:
         return o, -1
-    out_cell, out_ptr, out_bin = m[4], m[5], m[6]  # model_tuple's order
-    scores_add(kern, out_ptr, out_bin, o, hist, S)
-    return o, out_cell[o]
+    scores_add(kern, m.out_ptr, m.out_bin, o, hist, S)
+    return o, m.out_cell[o]
 
 
 @njit(cache=True)
@@ -406,7 +434,7 @@ def _step_unsure(
 # nogil: a long search must not freeze the daemon's other threads (e-stop, status, signals).
 @njit(cache=True, nogil=True)
 def _run_simulations(
-    m: tuple,
+    m: ModelArrays,
     kern: tuple,
     root_pose: int,
     used: np.ndarray,
@@ -430,28 +458,9 @@ def _run_simulations(
     and `hist` are modified during a simulation and restored after it. Another thread may
     set `stop[0]` (the search runs without the GIL): the search ends after the simulation
     it is in. `objective`: `OBJECTIVE_CODES` (final, anytime, info_gain)."""
-    (
-        edge_ptr,
-        edge_action,
-        edge_target,
-        edge_cost,
-        _out_cell,
-        out_ptr,
-        out_bin,
-        _tk,
-        _tp,
-        _to,
-        _tc,
-        _mk,
-        _mp,
-        _mo,
-        _mc,
-        _na,
-        _nc,
-        _tr,
-        _mr,
-        action_cost,
-    ) = m
+    edge_ptr, edge_action, edge_target = m.edge_ptr, m.edge_action, m.edge_target
+    edge_cost, action_cost = m.edge_cost, m.action_cost
+    out_ptr, out_bin = m.out_ptr, m.out_bin
     (
         node_pose,
         node_depth,
@@ -718,9 +727,9 @@ class SearchResult:
         return 1.0 - self.value
 
 
-def model_tuple(model: ObservationModel) -> tuple:
-    """The observation model as the argument tuple the compiled code takes (no copies of the
-    model's arrays when they already have the compiled code's dtypes)."""
+def model_arrays(model: ObservationModel) -> ModelArrays:
+    """The observation model as the compiled code takes it (no copies of the model's arrays
+    when they already have the compiled code's dtypes)."""
 
     def i32(a: np.ndarray) -> np.ndarray:
         # One compiled variant for every model: edges in int32 (int64 ones, from models saved
@@ -735,30 +744,27 @@ def model_tuple(model: ObservationModel) -> tuple:
     def f64(a: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float64)
 
-    # Eq. 4's lookups use the rows re-keyed by (action, cell, class) (`rows_by_action`): the
-    # keys stand where the model's own would, the row each points to comes after.
     tkey, trow, mkey, mrow = model.rows_by_action
-    return (
-        i64(model.edge_ptr),
-        i32(model.edge_action),
-        i32(model.edge_target),
-        f64(model.edge_cost),  # empty: the action's cost (last entry)
-        i64(model.out_cell),
-        i64(model.out_ptr),
-        i64(model.out_bin),
-        tkey,
-        i64(model.tally_ptr),
-        i64(model.tally_out),
-        f64(model.tally_cum),
-        mkey,
-        i64(model.marg_ptr),
-        i64(model.marg_out),
-        f64(model.marg_cum),
-        np.int64(model.n_actions),
-        np.int64(model.n_cells),
-        trow,
-        mrow,
-        f64(model.action_cost),
+    return ModelArrays(
+        edge_ptr=i64(model.edge_ptr),
+        edge_action=i32(model.edge_action),
+        edge_target=i32(model.edge_target),
+        edge_cost=f64(model.edge_cost),
+        out_cell=i64(model.out_cell),
+        out_ptr=i64(model.out_ptr),
+        out_bin=i64(model.out_bin),
+        tally_key=tkey,
+        tally_row=trow,
+        tally_ptr=i64(model.tally_ptr),
+        tally_out=i64(model.tally_out),
+        tally_cum=f64(model.tally_cum),
+        marg_key=mkey,
+        marg_row=mrow,
+        marg_ptr=i64(model.marg_ptr),
+        marg_out=i64(model.marg_out),
+        marg_cum=f64(model.marg_cum),
+        n_cells=np.int64(model.n_cells),
+        action_cost=f64(model.action_cost),
     )
 
 
@@ -829,7 +835,7 @@ class TreeSearch:
         self.objective = objective
         self.anytime = objective == "anytime"
         self._objective_code = OBJECTIVE_CODES[objective]
-        self._m = model_tuple(model)
+        self._m = model_arrays(model)
         self.bayes = belief is not None
         self._k = (
             bayes_kernel_tuple(belief) if belief is not None else kernel_tuple(kernel, incremental)
@@ -843,9 +849,9 @@ class TreeSearch:
     def set_edge_cost(self, cost: np.ndarray) -> None:
         """Replace the model's edge costs c_m (E,) for this search's later trees."""
         c = np.ascontiguousarray(cost, dtype=np.float64).reshape(-1)
-        if c.shape != self._m[1].shape:
-            raise ValueError(f"edge costs must be {self._m[1].shape}, got {c.shape}")
-        self._m = (*self._m[:3], c, *self._m[4:])
+        if c.shape != self._m.edge_action.shape:
+            raise ValueError(f"edge costs must be {self._m.edge_action.shape}, got {c.shape}")
+        self._m = self._m._replace(edge_cost=c)
 
     def interrupt(self) -> None:
         """End the running search (and any later one) after its current simulation; it returns

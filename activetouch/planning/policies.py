@@ -26,7 +26,7 @@ from activetouch.errors import ConfigError, PlanningError
 from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.planning.simulated_belief import BeliefTable
-from activetouch.recognition.classifiers import ClassifierKernel
+from activetouch.recognition.kernels import ClassifierKernel
 
 
 def _i64(a: object) -> np.ndarray:

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from activetouch.recognition.classifiers import (
-    _Z_CLIP,
+from activetouch.recognition.kernels import (
     KIND_LINEAR_OVR,
     KIND_NN_INTERSECTION,
+    Z_CLIP,
     ClassifierKernel,
     kernel_proba,
     normalise_or_uniform,
@@ -126,7 +126,7 @@ def proba_scores(kern: tuple, hist: np.ndarray, S: np.ndarray) -> np.ndarray:
         inv = 1.0 / total
         for m in range(M):
             z = platt_a[m] * (S[m] * inv + b[m]) + platt_b[m]
-            z = min(max(z, -_Z_CLIP), _Z_CLIP)
+            z = min(max(z, -Z_CLIP), Z_CLIP)
             out[row_class[m]] += 1.0 / (1.0 + np.exp(z))
     else:
         if not 0.0 < S[M + 1] < np.inf:  # squares under/overflowed: kernel_proba rescales

@@ -35,7 +35,7 @@ from activetouch.planning.observation_model import (
     ObservationModel,
     edge_index_dtype,
 )
-from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
+from activetouch.recognition.kernels import KIND_LINEAR_OVR, ClassifierKernel
 
 TRANSLATION_CELL_M = 0.06
 QUATERNION_CELL = 0.05

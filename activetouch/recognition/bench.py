@@ -23,8 +23,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from activetouch.recognition.classifiers import CLASSIFIER_NAMES, kernel_proba, make_classifier
+from activetouch.recognition.classifiers import CLASSIFIER_NAMES, make_classifier
 from activetouch.recognition.histogram import HistogramSpec
+from activetouch.recognition.kernels import kernel_proba
 from activetouch.recognition.synthetic import SYNTHETIC_SHAPES, synthetic_grasp
 from activetouch.recognition.training import grasp_triangles, partial_histograms
 from activetouch.recognition.triangles import triangle_params

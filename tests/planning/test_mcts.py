@@ -9,10 +9,10 @@ import pytest
 
 from activetouch.errors import PlanningError
 from activetouch.planning import mcts, simulated_belief
-from activetouch.planning.mcts import TreeSearch, model_tuple
+from activetouch.planning.mcts import TreeSearch, model_arrays
 from activetouch.planning.observation_model import ObservationModel, outcome_probabilities
 from activetouch.planning.synthetic import synthetic_problem
-from activetouch.recognition.classifiers import (
+from activetouch.recognition.kernels import (
     KIND_LINEAR_OVR,
     KIND_NN_INNER,
     KIND_NN_INTERSECTION,
@@ -481,13 +481,13 @@ def test_both_granularities_plan() -> None:
 
 
 def _sampler_at(synth, root: int) -> tuple:
-    """What the compiled Eq. 4 sampler takes after the training grasp at `root`: (model tuple,
+    """What the compiled Eq. 4 sampler takes after the training grasp at `root`: (model arrays,
     kernel tuple, histogram counts, p(y | h), incremental scores)."""
     kern = simulated_belief.kernel_tuple(synth.kernel)
     counts, _ = _root(synth, root)
     S = np.empty(kern[1].shape[0] + 2)
     simulated_belief.scores_init(kern, counts, S)
-    return model_tuple(synth.model), kern, counts, synth.kernel.proba(counts), S
+    return model_arrays(synth.model), kern, counts, synth.kernel.proba(counts), S
 
 
 def _draws(n: int, *args) -> np.ndarray:

@@ -19,8 +19,8 @@ from activetouch.planning.policies import (
     run_policy,
 )
 from activetouch.planning.synthetic import synthetic_problem
-from activetouch.recognition.classifiers import KIND_LINEAR_OVR, ClassifierKernel
 from activetouch.recognition.histogram import HistogramSpec
+from activetouch.recognition.kernels import KIND_LINEAR_OVR, ClassifierKernel
 from tests.planning.test_mcts import (
     C_ROOT,
     ROOT_COUNTS,

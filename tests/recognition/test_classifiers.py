@@ -15,18 +15,20 @@ from hypothesis.extra.numpy import arrays
 from activetouch.errors import ConfigError, DataError
 from activetouch.recognition.classifiers import (
     CLASSIFIER_NAMES,
-    KIND_LINEAR_OVR,
-    KIND_NN_INNER,
-    KIND_NN_INTERSECTION,
-    ClassifierKernel,
     LinearSVMClassifier,
     NearestNeighbourClassifier,
     classifier_from_arrays,
     fit_platt,
-    kernel_proba,
     make_classifier,
 )
 from activetouch.recognition.histogram import HistogramSpec
+from activetouch.recognition.kernels import (
+    KIND_LINEAR_OVR,
+    KIND_NN_INNER,
+    KIND_NN_INTERSECTION,
+    ClassifierKernel,
+    kernel_proba,
+)
 from activetouch.recognition.synthetic import synthetic_grasp
 from activetouch.recognition.training import grasp_triangles, partial_histograms
 
