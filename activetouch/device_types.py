@@ -31,14 +31,14 @@ if TYPE_CHECKING:
 HAND_TYPES: dict[str, str] = {
     "twin": "activetouch.sim.devices:TwinHandConfig",
     "fake": "activetouch.fakes.replay:FakeHandConfig",
-    "reflex-takktile": "activetouch.drivers.reflex.takktile:ReflexTakktileConfig",
+    "reflex-takktile": "activetouch.rigs.reflex_emulated:ReflexTakktileRigConfig",
     "reflex-sf": "activetouch.drivers.reflex.sf:ReflexSFConfig",
 }
 ARM_TYPES: dict[str, str] = {
     "twin-floating": "activetouch.sim.devices:TwinFloatingArmConfig",
     "twin-baxter": "activetouch.sim.baxter:TwinBaxterArmConfig",
     "fake": "activetouch.fakes.replay:FakeArmConfig",
-    "baxter": "activetouch.drivers.baxter.arm:BaxterArmConfig",
+    "baxter": "activetouch.rigs.baxter_emulated:BaxterRigConfig",
 }
 DEFAULT_HAND = "twin"
 DEFAULT_ARM = "twin-floating"

@@ -26,6 +26,7 @@ import re
 import threading
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -37,6 +38,7 @@ from activetouch.interfaces import Arm, JointTrajectory
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
     from activetouch.emulators.baxter_bridge import BaxterEmulator
+    from activetouch.planning.motion.base import WristMotion
     from activetouch.planning.motion.baxter import BaxterWristMotion
     from activetouch.sim.baxter import TwinBaxterArm
 
@@ -283,3 +285,21 @@ def make_twin_emulated_wrist(
     rig = twin_rig(ctx)
     model = baxter_model(ctx, cfg.motion)
     return make_twin_wrist(arm, rig.world, model, cfg.motion, ObjectShapes(rig.library_root))
+
+
+@dataclass
+class BaxterRigConfig(BaxterArmConfig):
+    """``arm.type = "baxter"``: the driver, or with ``arm.emulate = "twin"`` the driver on the
+    bridge emulator driving the twin-baxter arm (the registry names this class, so the driver
+    floor never imports the rig)."""
+
+    def make(self, ctx: DeviceContext) -> Arm:
+        if self.emulate == "twin":
+            self.check()
+            return make_twin_emulated(self, ctx)
+        return super().make(ctx)
+
+    def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:
+        if self.emulate == "twin":
+            return make_twin_emulated_wrist(self, arm, ctx)
+        return super().make_wrist(arm, ctx)

@@ -17,10 +17,11 @@ from __future__ import annotations
 
 import dataclasses
 import socket
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
-from activetouch.interfaces import N_SENSORS, Grasp
+from activetouch.interfaces import N_SENSORS, Grasp, Hand
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
@@ -132,3 +133,16 @@ def make_twin_emulated(cfg: ReflexTakktileConfig, ctx: DeviceContext) -> TwinEmu
         emulate="",
     )
     return TwinEmulatedHand(driver_cfg, emu, fingers)
+
+
+@dataclass
+class ReflexTakktileRigConfig(ReflexTakktileConfig):
+    """``hand.type = "reflex-takktile"``: the driver, or with ``hand.emulate = "twin"`` the
+    driver on its emulator backed by the twin (the registry names this class, so the driver
+    floor never imports the rig)."""
+
+    def make(self, ctx: DeviceContext) -> Hand:
+        if self.emulate == "twin":
+            self.check()
+            return make_twin_emulated(self, ctx)
+        return super().make(ctx)

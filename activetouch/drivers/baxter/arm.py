@@ -142,20 +142,14 @@ class BaxterArmConfig(ArmConfig):
 
     def make(self, ctx: DeviceContext) -> Arm:
         self.check()
-        if self.emulate == "twin":
-            from activetouch.rigs.baxter_emulated import make_twin_emulated
-
-            return make_twin_emulated(self, ctx)
+        if self.emulate:  # the rig's config class (activetouch.rigs) makes that one
+            raise ConfigError(f"arm.emulate = {self.emulate!r}: made through the device registry")
         return BaxterArm(self)
 
     def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:
         """`BaxterWristMotion`: with ``emulate = "twin"`` the twin-baxter type's (placement and
         object shape from the twin world); on the robot the workcell's table and object frame
         (the object has no shape yet: transits do not avoid it)."""
-        if self.emulate == "twin":
-            from activetouch.rigs.baxter_emulated import make_twin_emulated_wrist
-
-            return make_twin_emulated_wrist(self, arm, ctx)
         from activetouch.planning.motion.base import workcell_placement
         from activetouch.planning.motion.baxter import BaxterWristMotion
         from activetouch.planning.motion.robot import load_arm

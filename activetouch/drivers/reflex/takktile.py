@@ -35,6 +35,7 @@ from activetouch.drivers.reflex.common import (
     CloseStep,
     RateLimitedWarning,
     ReflexHandState,
+    ServoFaultError,
     StallDetector,
     StreamLostError,
     close_step,
@@ -66,11 +67,6 @@ SERVO_NAMES = (
     "preshape servo",
 )
 CALIBRATE_TACTILE = "activetouch calibrate tactile"
-
-
-class ServoFaultError(ActiveTouchError):
-    """A servo reading that cannot be true (not answered, outside the window, alarm, hot): the
-    hand is stopped and nothing is commanded from it."""
 
 
 class TactileCalibrationError(ActiveTouchError):
@@ -201,10 +197,8 @@ class ReflexTakktileConfig(HandConfig):
 
     def make(self, ctx: DeviceContext) -> Hand:
         self.check()
-        if self.emulate == "twin":
-            from activetouch.rigs.reflex_emulated import make_twin_emulated
-
-            return make_twin_emulated(self, ctx)
+        if self.emulate:  # the rig's config class (activetouch.rigs) makes that one
+            raise ConfigError(f"hand.emulate = {self.emulate!r}: made through the device registry")
         tactile, fingers, device = None, None, self.serial or self.type
         if self.load_calibration:
             tactile, fingers = stored_calibration(device, ctx.data)

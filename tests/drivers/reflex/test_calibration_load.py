@@ -33,7 +33,9 @@ def test_the_driver_loads_its_calibration_at_connect(tmp_path) -> None:
         devices = make_devices(cfg, tmp_path)
         try:
             hand = devices.hand
-            np.testing.assert_allclose(hand.offsets, offsets, atol=1.0)
+            # Each offset is a mean of ~40 samples of noise 2 (σ ≈ 0.3): 2.5 is ~8σ, so none of
+            # the 38 misses by chance, even on a loaded machine that takes half the samples.
+            np.testing.assert_allclose(hand.offsets, offsets, atol=2.5)
             assert np.abs(hand.state().pressures).max() < 20.0  # zeroed: nothing touches
         finally:
             devices.close()

@@ -13,7 +13,7 @@ import pytest
 
 from activetouch.device_types import config_class, device_config
 from activetouch.drivers.reflex.common import StreamLostError
-from activetouch.drivers.reflex.takktile import ReflexTakktileHand
+from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 from activetouch.errors import ConfigError, StoppedError
 
 from .conftest import GROUP, MOTOR_ZERO, driver_config, free_udp_port
@@ -297,7 +297,7 @@ def test_connect_without_stream_times_out():
 
 
 def test_registry_and_config_checks():
-    assert config_class("hand", "reflex-takktile").__name__ == "ReflexTakktileConfig"
+    assert issubclass(config_class("hand", "reflex-takktile"), ReflexTakktileConfig)
     cfg = device_config(
         "hand",
         {
