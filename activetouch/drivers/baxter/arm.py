@@ -69,7 +69,7 @@ class BaxterArmConfig(ArmConfig):
     bridge_namespace: str = ros1.DEFAULT_BRIDGE_NAMESPACE
     # "namespaced": <hex type>/<md5>/<namespace>/<topic> (zenoh-plugin-ros1 main since
     # 2025-02); "legacy": <hex type>/<md5>/<topic> (1.0.0-rc.1 and older).
-    bridge_format: str = "namespaced"
+    bridge_format: str = "auto"  # auto | namespaced | legacy (docs/protocols/baxter.md)
     command_hz: float = 100.0
     # Zenoh endpoints of the bridge (its session is separate from the service's).
     connect: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7448"])
@@ -115,9 +115,9 @@ class BaxterArmConfig(ArmConfig):
             raise ConfigError(f"arm.emulate: {self.emulate!r} is not one of '', 'twin'")
         if not 0 < self.sample_dt <= 0.01:
             raise ConfigError(f"arm.sample_dt must be in (0, 0.01] s, got {self.sample_dt}")
-        if self.bridge_format not in ros1.BRIDGE_FORMATS:
+        if self.bridge_format not in ros1.BRIDGE_FORMAT_CHOICES:
             raise ConfigError(
-                f"arm.bridge_format: expected one of {ros1.BRIDGE_FORMATS}, "
+                f"arm.bridge_format: expected one of {ros1.BRIDGE_FORMAT_CHOICES}, "
                 f"got {self.bridge_format!r}"
             )
         ros1.check_namespace(self.bridge_namespace)
@@ -238,6 +238,7 @@ class BaxterArm(Arm):
         self._best_lag = math.inf  # s, smallest (wall clock - header stamp) seen
         self._subs: list[Any] = []
         self._pubs: dict[str, Any] = {}
+        self._detected: tuple[str, str] | None = None  # (format, namespace) with `auto`
 
     # ---------------------------------------------------------------- Arm properties
     @property
@@ -249,7 +250,27 @@ class BaxterArm(Arm):
         return self._limits
 
     def key(self, ros_type: str, topic: str) -> str:
-        return ros1.bridge_key(ros_type, topic, self.cfg.bridge_namespace, self.cfg.bridge_format)
+        fmt, ns = self.bridge_format, self.bridge_namespace
+        if fmt == "auto":
+            raise ConfigError(
+                "arm.bridge_format = auto: the format is not known before a joint state"
+            )
+        return ros1.bridge_key(ros_type, topic, ns, fmt)
+
+    @property
+    def bridge_format(self) -> str:
+        """The key format in use: the configured one, or the one detected (`auto`)."""
+        return self._detected[0] if self._detected is not None else self.cfg.bridge_format
+
+    @property
+    def bridge_namespace(self) -> str:
+        return self._detected[1] if self._detected is not None else self.cfg.bridge_namespace
+
+    def _joint_state_keys(self) -> tuple[str, ...]:
+        t = self._topics
+        if self.cfg.bridge_format == "auto":
+            return ros1.auto_keys(ros1.JOINT_STATE, t.joint_states)
+        return (self.key(ros1.JOINT_STATE, t.joint_states),)
 
     # ---------------------------------------------------------------- connection
     def connect(self) -> None:
@@ -274,15 +295,24 @@ class BaxterArm(Arm):
         t = self._topics
         try:
             self._subs = [
-                self._session.declare_subscriber(
-                    self.key(ros1.JOINT_STATE, t.joint_states), self._on_joint_state
-                ),
+                self._session.declare_subscriber(k, self._on_joint_state)
+                for k in self._joint_state_keys()
+            ]
+            self._wait_joints(self.cfg.connect_timeout_s)
+            if self.cfg.bridge_format == "auto":
+                log.info(
+                    "Baxter %s arm: the bridge speaks the %s key format%s",
+                    self.cfg.side,
+                    self.bridge_format,
+                    f" (namespace {self.bridge_namespace!r})" if self.bridge_namespace else "",
+                )
+            self._subs.append(
                 self._session.declare_subscriber(
                     self.key(ros1.ASSEMBLY_STATE, t.robot_state), self._on_robot_state
-                ),
-            ]
-            # Declared up front so the bridge discovers them and sets up its ROS publishers
-            # before the first command.
+                )
+            )
+            # Publishers on the format the bridge speaks. Declaring them does not make the
+            # bridge bridge a topic: it bridges what ROS has (docs/protocols/baxter.md).
             for ros_type, topic in (
                 (ros1.JOINT_COMMAND, t.joint_command),
                 (ros1.FLOAT64, t.speed_ratio),
@@ -292,7 +322,6 @@ class BaxterArm(Arm):
                 (ros1.EMPTY, t.reset),
             ):
                 self._pubs[topic] = self._session.declare_publisher(self.key(ros_type, topic))
-            self._wait_joints(self.cfg.connect_timeout_s)
             if self.cfg.enable_on_connect:
                 self.enable()
         except BaseException:
@@ -314,6 +343,10 @@ class BaxterArm(Arm):
     # Parse and store only: never call Zenoh or block in a callback.
     def _on_joint_state(self, sample: Any) -> None:
         assert self._codec is not None
+        if self._detected is None and self.cfg.bridge_format == "auto":
+            self._detected = ros1.format_of_key(
+                str(sample.key_expr), ros1.JOINT_STATE, self._topics.joint_states
+            )
         try:
             msg = self._codec.parse_joint_state(bytes(sample.payload.to_bytes()))
         except MessageError as e:
@@ -361,7 +394,7 @@ class BaxterArm(Arm):
                 if left <= 0:
                     raise NodeUnavailableError(
                         f"Baxter {self.cfg.side} arm: no joint state on "
-                        f"{self.key(ros1.JOINT_STATE, self._topics.joint_states)} "
+                        f"{' or '.join(self._joint_state_keys())} "
                         f"within {timeout:g} s (is zenoh-bridge-ros1 running and connected?)"
                     )
                 self._cond.wait(left)

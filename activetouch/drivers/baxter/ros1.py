@@ -25,6 +25,10 @@ from activetouch.errors import ConfigError, MessageError
 SIDES = ("left", "right")
 JOINTS = ("s0", "s1", "e0", "e1", "w0", "w1", "w2")  # shoulder -> wrist, baxter_interface order
 BRIDGE_FORMATS = ("namespaced", "legacy")
+# `auto`: take the format from the first joint state, on either key form (a tagged release of
+# zenoh-plugin-ros1, 0.10.0-rc to 1.0.0-rc.1, is `legacy`; untagged main since 2025-02-26 is
+# `namespaced`).
+BRIDGE_FORMAT_CHOICES = ("auto", *BRIDGE_FORMATS)
 # The bridge's own default namespace is the literal chunk "*": it declares its publishers and
 # subscribers on ".../*/topic". Zenoh delivers a put on that key to every intersecting
 # subscriber and a subscriber on it receives puts on any namespace, so "*" interoperates with
@@ -152,6 +156,24 @@ def bridge_key(ros_type: str, topic: str, namespace: str, fmt: str, md5: str | N
     if fmt == "legacy":
         return f"{head}/{name}"
     return f"{head}/{check_namespace(namespace)}/{name}"
+
+
+def auto_keys(ros_type: str, topic: str, md5: str | None = None) -> tuple[str, str]:
+    """The key expressions to hear `topic` on in either format: legacy, then namespaced (any
+    one-chunk namespace)."""
+    legacy = bridge_key(ros_type, topic, "", "legacy", md5)
+    md5 = md5 or MD5[ros_type]
+    return legacy, f"{ros_type.encode().hex()}/{md5}/*/{topic.strip('/')}"
+
+
+def format_of_key(key: str, ros_type: str, topic: str, md5: str | None = None) -> tuple[str, str]:
+    """(format, namespace) of a key a bridge published `topic` on."""
+    legacy = bridge_key(ros_type, topic, "", "legacy", md5)
+    if str(key) == legacy:
+        return "legacy", ""
+    head = legacy[: -len(topic.strip("/"))]  # "<hex>/<md5>/"
+    middle = str(key)[len(head) : -len(topic.strip("/")) - 1]
+    return "namespaced", middle
 
 
 @dataclass(frozen=True)

@@ -249,6 +249,33 @@ def test_namespace_and_legacy_keys(endpoint: str, ns: str, legacy: bool, fmt: st
             a.disconnect()
 
 
+@pytest.mark.parametrize(
+    ("ns", "legacy", "fmt"),
+    [("lab", False, "namespaced"), ("*", False, "namespaced"), ("*", True, "legacy")],
+)
+def test_default_settings_take_the_key_format_from_the_bridge(
+    endpoint: str, ns: str, legacy: bool, fmt: str
+) -> None:
+    # Issue 23 finding 4: with the old default ("namespaced") a tagged-release bridge (legacy
+    # keys) gave no joint state at all. `auto` hears both forms and answers in the one it heard.
+    with (
+        ZenohSession(ZenohSettings(listen=(endpoint,))) as zs,
+        BaxterEmulator(
+            zs.session, EmulatorSettings(enabled=True, namespace=ns, legacy=legacy)
+        ) as robot,
+    ):
+        a = make_arm(endpoint)  # no bridge_format: the default
+        assert a.cfg.bridge_format == "auto"
+        a.connect()
+        try:
+            assert (a.bridge_format, a.bridge_namespace) == (fmt, "" if legacy else ns)
+            q0 = a.joint_state().position
+            a.execute(ramp(q0, {5: 0.2}, 0.4))
+            assert robot.positions("left")[5] == pytest.approx(q0[5] + 0.2, abs=0.02)
+        finally:
+            a.disconnect()
+
+
 def test_default_namespace_reaches_a_named_bridge(endpoint: str) -> None:
     # the bridge's default "*" is literal in its keys; a driver on "*" still meets a bridge
     # publishing under a named namespace, and vice versa (Zenoh key intersection)

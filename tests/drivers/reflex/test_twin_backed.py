@@ -47,10 +47,13 @@ def test_driver_on_twin_backed_emulator_matches_twin():
             finally:
                 hand.disconnect()
         assert hand.last_close_reasons == ("contact",) * 3
-        # Same fingers, same links touched; the servo runs on a little past the first
-        # reading, so the driver may see a neighbouring sensor more.
-        assert set(direct.sensor_ids.tolist()) <= set(g.sensor_ids.tolist())
-        assert len(g.sensor_ids) <= len(direct.sensor_ids) + 4
+        # Same fingers touched. The servo runs on a little past the first reading, so the
+        # driver may see a neighbouring sensor more; and its thresholds come from the noise it
+        # measured at connect (zero_on_connect), so it may miss the lightest one the twin's
+        # fixed threshold counts: a few sensors either way, never another finger.
+        twin, driver = set(direct.sensor_ids.tolist()), set(g.sensor_ids.tolist())
+        assert {i // 9 for i in twin} == {i // 9 for i in driver}
+        assert len(twin ^ driver) <= 4, (twin, driver)
         assert np.allclose(g.finger_angles, direct.finger_angles, atol=0.05)
     finally:
         w_direct.close()
