@@ -189,6 +189,9 @@ class EmulatorSettings:
     lag_tau_s: float = 0.05  # first-order lag of the joint position loop
     enabled: bool = False  # the robot starts disabled, as after power-up
     start: dict[str, float] = field(default_factory=dict)  # joint name -> initial position
+    # The bridge does not forward joint_command (zenoh-plugin-ros1 issue #92: a topic with
+    # only ROS subscribers may never be bridged): states flow, commands vanish.
+    drop_commands: bool = False
 
 
 class Body(Protocol):
@@ -256,6 +259,8 @@ class BaxterEmulator:
 
     def _on_command(self, side: str):
         def cb(sample) -> None:
+            if self.s.drop_commands:
+                return
             try:
                 mode, command, names = parse_joint_command(self._payload(sample))
             except WireError:

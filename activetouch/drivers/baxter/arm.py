@@ -210,6 +210,20 @@ def check_trajectory(
     return times - times[0], pos
 
 
+def not_following(q_start: np.ndarray, q: np.ndarray, side: str) -> str:
+    """What to say when fresh joint states show the arm has not moved at all under a command:
+    the commands are likely not reaching Baxter (zenoh-plugin-ros1 issue #92)."""
+    if float(np.max(np.abs(np.asarray(q) - np.asarray(q_start)))) > 2e-3:
+        return ""
+    return (
+        f". Joint states arrive but the arm has not moved at all: the bridge is probably not "
+        f"forwarding /robot/limb/{side}/joint_command (zenoh-plugin-ros1 issue #92: a topic "
+        "with only ROS subscribers may not be bridged). Run the bridge in `auto` mode, started "
+        f"after Baxter's nodes; `rostopic info /robot/limb/{side}/joint_command` must list it as "
+        "a publisher, else relay the topic from ROS. Check too that the arm is enabled"
+    )
+
+
 class BaxterArm(Arm):
     """One Baxter arm over zenoh-bridge-ros1. Pass `session` (a `zenoh.Session`) to share one;
     otherwise `connect()` opens its own from the config's endpoints and closes it again."""
@@ -486,6 +500,7 @@ class BaxterArm(Arm):
         off_since: np.ndarray = np.full(7, math.nan)  # when each joint left the tolerance
         settle_deadline = times[-1] + cfg.settle_timeout_s
         next_settings = 0.0
+        q_start, _ = self._fresh_joints()
         t0 = time.monotonic()
         k = 0
         while True:
@@ -510,7 +525,7 @@ class BaxterArm(Arm):
                 raise TrackingError(
                     f"Baxter {self._names[j]} is {err[j]:.3f} rad from its command for "
                     f"> {cfg.tracking_grace_s:g} s (tolerance {cfg.tracking_tolerance_rad:g} "
-                    "rad): motion aborted, holding"
+                    "rad): motion aborted, holding" + not_following(q_start, q, self.cfg.side)
                 )
             if t >= times[-1]:
                 goal_err = np.abs(goal - q)

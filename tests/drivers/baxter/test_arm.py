@@ -276,6 +276,23 @@ def test_default_settings_take_the_key_format_from_the_bridge(
             a.disconnect()
 
 
+def test_commands_the_bridge_does_not_forward_are_named_as_such(endpoint: str) -> None:
+    # Issue 23 finding 5 (zenoh-plugin-ros1 #92): joint states flow, joint_command vanishes.
+    # Before, this was only "a tracking error"; now the error says what is likely happening.
+    with (
+        ZenohSession(ZenohSettings(listen=(endpoint,))) as zs,
+        BaxterEmulator(zs.session, EmulatorSettings(enabled=True, drop_commands=True)),
+    ):
+        a = make_arm(endpoint)
+        a.connect()
+        try:
+            q0 = a.joint_state().position
+            with pytest.raises(TrackingError, match=r"issue #92"):
+                a.execute(ramp(q0, {1: 0.5}, 1.0))
+        finally:
+            a.disconnect()
+
+
 def test_default_namespace_reaches_a_named_bridge(endpoint: str) -> None:
     # the bridge's default "*" is literal in its keys; a driver on "*" still meets a bridge
     # publishing under a named namespace, and vice versa (Zenoh key intersection)
