@@ -510,6 +510,6 @@ def test_a_streaming_hand_is_published_beside_a_running_grasp(
     t.start()
     time.sleep(0.2)
     hand.emit(stale=True)  # a reading during the grasp: published at once
-    msg = latest.wait(2.0)
+    msg = latest.wait(10.0)  # generous: a loaded machine delays the delivery, not the publish
     assert msg.stale is True and msg.wall_stamp == 123.0
     t.join(5.0)
