@@ -251,6 +251,12 @@ class ServiceConfig:
     node_timeout_s: float = 5.0  # quick hand/arm calls (state, stop)
     motion_timeout_s: float = 60.0  # hand/arm motions (open, grasp, move)
     node_wait_s: float = 10.0  # at start: how long to wait for the hand/arm liveliness tokens
+    # Devices that come and go (activetouch.daemon.supervision): the daemon starts without
+    # them, tries to connect each every device_retry_s, probes a connected one every
+    # device_check_s, and a probe failing for device_lost_after_s makes it lost (reconnected).
+    device_retry_s: float = 2.0
+    device_check_s: float = 0.5
+    device_lost_after_s: float = 1.0
     request_timeout_s: float = 600.0  # clients: a recognition must finish within this
     state_hz: float = 20.0  # hand state / arm joint states publication rate
     # Recognitions that may wait while one runs (FIFO); 0: a second request gets a busy error.

@@ -107,16 +107,19 @@ def floating_wrist(arm_type: str, arm: Arm) -> WristMotion:
     return FloatingWristMotion(arm)
 
 
-def make_devices(cfg: Config, data: Any = None) -> Devices:
+def make_devices(cfg: Config, data: Any = None, connect: bool = True) -> Devices:
     """Make and connect the hand and the arm of `cfg` (``[hand]``, ``[arm]``); `data` is the
-    data directory (object library, datasets) for the simulated devices."""
+    data directory (object library, datasets) for the simulated devices. With
+    ``connect=False`` they are made (settings checked) but not connected: the daemon connects
+    them in the background, as they appear (activetouch.daemon.supervision)."""
     ctx = DeviceContext(cfg, data)
     try:
         hand = cfg.hand.make(ctx)
         arm = cfg.arm.make(ctx)
         wrist = cfg.arm.make_wrist(arm, ctx) or floating_wrist(cfg.arm.type, arm)
-        hand.connect()
-        arm.connect()
+        if connect:
+            hand.connect()
+            arm.connect()
     except BaseException:
         ctx.close()
         raise

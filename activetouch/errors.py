@@ -50,6 +50,11 @@ class NodeUnavailableError(ActiveTouchError):
     """A remote node (hand, arm, daemon) did not answer in time or its liveliness token dropped."""
 
 
+class DeviceFaultError(ActiveTouchError):
+    """A device reading that cannot be true: the device stopped itself; the message names the
+    part and what to check."""
+
+
 class RemoteError(ActiveTouchError):
     """A remote node failed with an error that has no counterpart here (e.g. a driver bug)."""
 

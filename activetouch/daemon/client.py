@@ -264,8 +264,10 @@ def describe_status(st: Status) -> list[str]:
     """Lines for a terminal."""
     lines = [f"robot {st.robot} ({st.mode or '?'}), up {st.uptime_s:.0f} s"]
     for name, h in sorted(st.nodes.items()):
-        state = "alive" if h.alive else "DOWN"
-        lines.append(f"  {name:<7} {state}{'  ' + h.detail if h.detail else ''}")
+        state = h.state or ("alive" if h.alive else "down")
+        state = state if h.alive else state.upper()
+        device = f" ({h.device})" if h.device else ""
+        lines.append(f"  {name:<7} {state}{device}{'  ' + h.detail if h.detail else ''}")
     if st.model_loaded:
         lines.append(f"  model   {st.model}")
     else:

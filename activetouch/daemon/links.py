@@ -8,7 +8,7 @@ from typing import Any
 
 import zenoh
 
-from activetouch.daemon.liveliness import AliveNodes, tokens_left
+from activetouch.daemon.liveliness import AliveNodes, DeviceHealthWatch, tokens_left
 from activetouch.daemon.remote import Coalesced, RemoteArm, RemoteHand, RemotePlace
 from activetouch.daemon.serving import JSON, direct
 from activetouch.errors import (
@@ -32,6 +32,9 @@ class ServiceLinks:
     arm: Any  # WristMotion (move_to) with stop, clear_stop, estop
     place: Any = None  # (object, seed) -> Placed / SimPlaceResult; None: a real robot
     alive: Any = None  # snapshot() / since(node): the nodes' liveliness; None: always alive
+    health: Any = None  # node -> its device's last DeviceHealth, or None
+    # node -> does it hold a liveliness token right now (asked, not cached); None: not asked
+    confirm_alive: Any = None
     publish: Any = None  # bytes -> None: a progress sample
     # (session_id, on_gone) -> handle to undeclare, or None: the requester holds no token
     watch_requester: Any = None
@@ -43,6 +46,7 @@ def zenoh_links(session: zenoh.Session, robot: str, mode: str, svc: Any) -> Serv
     keys = Keys(robot)
     timeouts = {"timeout": svc.node_timeout_s, "motion_timeout": svc.motion_timeout_s}
     alive = AliveNodes(session, robot)
+    health = DeviceHealthWatch(session, robot)
     hand = RemoteHand(session, robot, **timeouts)
     arm = RemoteArm(session, robot, **timeouts)
     sim = RemotePlace(session, robot, svc.motion_timeout_s) if mode == "sim" else None
@@ -73,10 +77,13 @@ def zenoh_links(session: zenoh.Session, robot: str, mode: str, svc: Any) -> Serv
         arm=arm,
         place=sim.place if sim is not None else None,
         alive=alive,
+        health=health.get,
+        confirm_alive=lambda node: tokens_left(session, keys.alive(node), timeout=0.5),
         publish=publisher.put,
         watch_requester=watch,
         closers=[
             alive.close,
+            health.close,
             hand.close,
             arm.close,
             *([sim.close] if sim else []),

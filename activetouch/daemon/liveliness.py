@@ -127,3 +127,50 @@ class AliveNodes:
         sub, self._sub = self._sub, None
         if sub is not None:
             undeclare_quietly(sub)
+
+
+class DeviceHealthWatch:
+    """The device nodes' last `DeviceHealth` (``health/<node>``): why a device is waiting or
+    lost, for `status` and for refusing a recognition at once. Asked once at start (a node
+    that published before this daemon existed) and then followed."""
+
+    def __init__(self, session: zenoh.Session, robot: str) -> None:
+        from activetouch.transport.messages import DeviceHealth, decode
+
+        self.keys = Keys(robot)
+        self._decode = lambda b: decode(b, DeviceHealth)
+        self._mu = threading.Lock()
+        self._last: dict[str, Any] = {}
+        self._session = session
+        self._sub: Any = session.declare_subscriber(self.keys.health_all, direct(self._on_sample))
+        threading.Thread(target=self._ask, name="activetouch-health-get", daemon=True).start()
+
+    def _store(self, payload: bytes) -> None:
+        try:
+            h = self._decode(payload)
+        except Exception:
+            log.debug("dropping a malformed health sample", exc_info=True)
+            return
+        with self._mu:
+            self._last[h.node] = h
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        self._store(bytes(sample.payload.to_bytes()))
+
+    def _ask(self) -> None:
+        try:
+            for r in self._session.get(self.keys.health_all, timeout=LIVELINESS_CHECK_S):
+                if r.ok is not None:
+                    self._store(bytes(r.ok.payload.to_bytes()))
+        except Exception:
+            log.debug("asking the device nodes' health failed", exc_info=True)
+
+    def get(self, node: str) -> Any:
+        """The node's last `DeviceHealth`, or None if it never said."""
+        with self._mu:
+            return self._last.get(node)
+
+    def close(self) -> None:
+        sub, self._sub = self._sub, None
+        if sub is not None:
+            undeclare_quietly(sub)

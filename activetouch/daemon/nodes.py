@@ -29,6 +29,7 @@ import zenoh
 
 from activetouch.clock import SYSTEM_CLOCK, Clock
 from activetouch.daemon.serving import JSON, MAX_STREAM_HZ, Op, ServedNode
+from activetouch.daemon.supervision import DeviceLink
 from activetouch.errors import (
     ActiveTouchError,
 )
@@ -64,7 +65,8 @@ log = logging.getLogger(__name__)
 class HandNode(ServedNode):
     """Serve `hand` on ``activetouch/<robot>/hand/...``; publish its state at `state_hz`.
 
-    The hand must already be connected; the node does not connect or disconnect it."""
+    The hand must already be connected, or `link` (activetouch.daemon.supervision) connects it
+    and the node serves commands only while it is connected."""
 
     node_name = HAND_NODE
 
@@ -77,6 +79,7 @@ class HandNode(ServedNode):
         state_hz: float = 20.0,
         lock: threading.Lock | None = None,
         clock: Clock = SYSTEM_CLOCK,
+        link: DeviceLink | None = None,
     ) -> None:
         # A hand that reports each reading as it arrives (the ReFlex drivers: 40 Hz, and once
         # when its stream goes stale) is published from there, beside a running grasp;
@@ -89,6 +92,7 @@ class HandNode(ServedNode):
             state_hz=0.0 if streams else state_hz,
             lock=lock,
             clock=clock,
+            link=link,
         )
         self.hand = hand
         self._stream_pub: Any = None
@@ -156,6 +160,7 @@ class ArmNode(ServedNode):
         state_hz: float = 20.0,
         lock: threading.Lock | None = None,
         clock: Clock = SYSTEM_CLOCK,
+        link: DeviceLink | None = None,
     ) -> None:
         super().__init__(
             session,
@@ -164,6 +169,7 @@ class ArmNode(ServedNode):
             state_hz=state_hz,
             lock=lock,
             clock=clock,
+            link=link,
         )
         self.arm = arm
         self.wrist = wrist

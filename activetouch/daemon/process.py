@@ -32,6 +32,7 @@ from activetouch.config import Config, ServiceConfig
 from activetouch.daemon.device_nodes import DeviceNodes
 from activetouch.daemon.logs import JsonFormatter, LogfmtFormatter, setup_logging
 from activetouch.daemon.recognition_service import RecognitionService
+from activetouch.daemon.supervision import LinkSettings
 from activetouch.daemon.systemd import sd_notify, watchdog_period
 from activetouch.errors import ConfigError
 from activetouch.transport.zenoh_session import (
@@ -76,7 +77,14 @@ def check_service_config(svc: ServiceConfig) -> None:
                 validate_endpoint(ep)
             except ConfigError as e:
                 raise ConfigError(f"service.{name}: {e}") from None
-    positive = ("node_timeout_s", "motion_timeout_s", "request_timeout_s")
+    positive = (
+        "node_timeout_s",
+        "motion_timeout_s",
+        "request_timeout_s",
+        "device_retry_s",
+        "device_check_s",
+        "device_lost_after_s",
+    )
     non_negative = (
         "node_wait_s",
         "state_hz",
@@ -175,8 +183,20 @@ class Daemon:
             if opts.role in ("all", "nodes"):
                 from activetouch.devices import make_devices
 
-                self.devices = make_devices(opts.cfg, opts.data)
-                self.nodes = DeviceNodes(self.devices, self.zs.session, svc.robot, svc.state_hz)
+                # Made now (a wrong setting fails here), connected as they appear: a robot
+                # PC may boot before its robot, and a device may go and come back.
+                self.devices = make_devices(opts.cfg, opts.data, connect=False)
+                self.nodes = DeviceNodes(
+                    self.devices,
+                    self.zs.session,
+                    svc.robot,
+                    svc.state_hz,
+                    links=LinkSettings(
+                        retry_s=svc.device_retry_s,
+                        check_s=svc.device_check_s,
+                        lost_after_s=svc.device_lost_after_s,
+                    ),
+                )
             if opts.role in ("all", "daemon"):
                 self.service = RecognitionService(
                     self.zs.session, svc.robot, opts.mode, opts.cfg, opts.model_dir, opts.data

@@ -315,6 +315,7 @@ class RecognitionService:
                 "cannot place objects; leave it null",
                 field="object",
             )
+        self._require_devices()
 
     def _busy_text(self) -> str:
         cur = self._running
@@ -403,18 +404,74 @@ class RecognitionService:
         log.info("cancel", extra={"session": sid, "queued": dropped is not None})
         return CancelResult(cancelled=True, session_id=sid)
 
+    def _node_health(self, name: str, seen: dict[str, bool]) -> NodeHealth:
+        """One node as `status` shows it: a device node connected, waiting or lost (with why
+        and since when, from its own health, or from its token when its process is gone)."""
+        alive = self.links.alive
+        since = (alive.since(name) if alive is not None else None) or 0.0
+        health = self.links.health(name) if self.links.health is not None else None
+        device = health.device if health is not None else ""
+        if seen.get(name):
+            changed = time.time() - since
+            if health is not None and health.state == "connected":
+                changed = health.since
+            return NodeHealth(
+                alive=True,
+                detail=f"up for {since:.1f} s",
+                state="connected" if name in (HAND_NODE, ARM_NODE) else "",
+                since=changed,
+                device=device,
+            )
+        if health is not None and health.state != "connected":
+            age = max(0.0, time.time() - health.since)
+            what = "not connected yet" if health.state == "waiting" else "lost"
+            return NodeHealth(
+                alive=False,
+                detail=f"{what} for {age:.0f} s: {health.detail}"[:1000],
+                state=health.state,
+                since=health.since,
+                device=device,
+            )
+        if name not in seen:
+            return NodeHealth(
+                alive=False,
+                detail=f"no {name} node heard yet (never seen)",
+                state="waiting",
+                since=time.time() - (time.monotonic() - self._t0),
+                device=device,
+            )
+        return NodeHealth(
+            alive=False,
+            detail=f"the {name} node went away {since:.1f} s ago (its process stopped?)",
+            state="lost",
+            since=time.time() - since,
+            device=device,
+        )
+
+    def _require_devices(self) -> None:
+        """Refuse at once, with the reason, while a node the recognition needs is missing."""
+        alive = self.links.alive
+        if alive is None:
+            return
+        seen = alive.snapshot()
+        for name in self.node_names:
+            if seen.get(name):
+                continue
+            confirm = self.links.confirm_alive
+            if confirm is not None and confirm(name):
+                continue  # its token just appeared
+            h = self._node_health(name, seen)
+            raise NodeUnavailableError(
+                f"cannot recognise now: the {name} is {h.state or 'missing'} ({h.detail}); "
+                "nothing was moved. `activetouch status` shows the devices"
+            )
+
     def status(self) -> Status:
         alive = self.links.alive
         seen = alive.snapshot() if alive is not None else dict.fromkeys(self.node_names, True)
         nodes: dict[str, NodeHealth] = {DAEMON_NODE: NodeHealth(alive=True, detail="serving")}
         for name in self.node_names:
-            since = (alive.since(name) if alive is not None else None) or 0.0
-            if name not in seen:
-                nodes[name] = NodeHealth(alive=False, detail="never seen")
-            elif seen[name]:
-                nodes[name] = NodeHealth(alive=True, detail=f"up for {since:.1f} s")
-            else:
-                nodes[name] = NodeHealth(alive=False, detail=f"gone for {since:.1f} s")
+            nodes[name] = self._node_health(name, seen)
         with self._cv:
             cur = self._running
             queued = len(self._pending)

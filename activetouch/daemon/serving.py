@@ -11,7 +11,7 @@ import queue
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import zenoh
 
@@ -24,6 +24,7 @@ from activetouch.errors import (
 )
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import (
+    DeviceHealth,
     Empty,
     Message,
     Reply,
@@ -31,6 +32,9 @@ from activetouch.transport.messages import (
     encode,
 )
 from activetouch.transport.zenoh_session import close_at_exit, undeclare_quietly
+
+if TYPE_CHECKING:
+    from activetouch.daemon.supervision import DeviceLink
 
 log = logging.getLogger(__name__)
 
@@ -99,6 +103,7 @@ class ServedNode:
         state_hz: float,
         lock: threading.Lock | None,
         clock: Clock = SYSTEM_CLOCK,
+        link: DeviceLink | None = None,
     ) -> None:
         if not state_hz >= 0:
             raise ConfigError(f"state_hz must be >= 0, got {state_hz}")
@@ -118,6 +123,11 @@ class ServedNode:
         self._queryables: list[Any] = []
         self._publisher: Any = None
         self._token: Any = None
+        # A device node's link (activetouch.daemon.supervision): commands only while its
+        # device is connected, the liveliness token only then, its health on health/<node>.
+        self.link = link
+        self._token_lock = threading.Lock()
+        self._health_pub: Any = None
         self._last_publish_error = ""
         self.published = 0  # state samples published so far
         name = f"activetouch-{self.node_name}-node"
@@ -146,17 +156,59 @@ class ServedNode:
                 self._queryables.append(
                     self._session.declare_queryable(op.key, direct(self._enqueuer(name, q)))
                 )
+            link = self.link
+            if link is not None:
+                health_key = self.keys.health(self.node_name)
+                self._health_pub = self._session.declare_publisher(health_key, encoding=JSON)
+                self._queryables.append(
+                    self._session.declare_queryable(health_key, direct(self._answer_health))
+                )
             self._worker.start()
             self._fast_worker.start()
             close_at_exit(self)  # stop the workers before the interpreter finalises
             # Last: a client that sees the token can use every queryable.
-            self._token = self._session.liveliness().declare_token(self.keys.alive(self.node_name))
+            if link is None:
+                self._set_token(True)
+            else:
+                link.add_listener(self._on_health)
+                self._on_health(link.health())
         except Exception:
             self.close()
             raise
         log.info(
             "%s node of robot %s serving under %s", self.node_name, self.robot, self.keys.prefix
         )
+
+    def _set_token(self, alive: bool) -> None:
+        with self._token_lock:
+            if alive and self._token is None and not self._closing.is_set():
+                key = self.keys.alive(self.node_name)
+                self._token = self._session.liveliness().declare_token(key)
+            elif not alive and self._token is not None:
+                undeclare_quietly(self._token)
+                self._token = None
+
+    def _on_health(self, health: DeviceHealth) -> None:
+        """The link's thread: the token follows the device; the health goes out."""
+        if self._closing.is_set():
+            return
+        self._set_token(health.state == "connected")
+        pub = self._health_pub
+        if pub is not None:
+            try:
+                pub.put(encode(health))
+            except Exception:
+                log.debug("%s node: publishing health failed", self.node_name, exc_info=True)
+
+    def _answer_health(self, query: zenoh.Query) -> None:
+        # Zenoh's thread, but cheap and non-blocking: a snapshot of the link's state.
+        link = self.link
+        if link is None:
+            return
+        try:
+            query.reply(self.keys.health(self.node_name), encode(link.health()), encoding=JSON)
+        except Exception:
+            log.debug("%s node: cannot answer health", self.node_name, exc_info=True)
 
     def _enqueuer(self, op: str, q: queue.SimpleQueue) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
@@ -180,8 +232,9 @@ class ServedNode:
             return
         self._closed = True
         self._closing.set()
-        undeclare_quietly(self._token, *self._queryables)
-        self._token = None
+        with self._token_lock:
+            undeclare_quietly(self._token, *self._queryables)
+            self._token = None
         self._queryables.clear()
         try:
             self._on_close()
@@ -198,9 +251,10 @@ class ServedNode:
                         self._busy,
                         join_timeout,
                     )
-        if self._publisher is not None:
-            undeclare_quietly(self._publisher)
-            self._publisher = None
+        for pub in (self._publisher, self._health_pub):
+            if pub is not None:
+                undeclare_quietly(pub)
+        self._publisher = self._health_pub = None
         log.info("%s node of robot %s closed", self.node_name, self.robot)
 
     def __enter__(self) -> ServedNode:
@@ -232,7 +286,7 @@ class ServedNode:
 
     def _publish_state(self) -> None:
         pub = self._publisher
-        if pub is None:
+        if pub is None or (self.link is not None and not self.link.connected):
             return
         try:
             with self._lock:
@@ -273,6 +327,8 @@ class ServedNode:
                         f"than its caller's timeout ({budget:g} s); not executed"
                     )
                 request = self._parse(query, op)
+                if self.link is not None and not op.fast:
+                    self.link.require()  # the reason, at once, while the device is away
                 if op.fast:
                     result = op.fn(request)
                 else:
@@ -286,6 +342,8 @@ class ServedNode:
             except Exception as e:
                 if not isinstance(e, ActiveTouchError | ValueError):
                     log.exception("%s node: %s failed", self.node_name, job.op)
+                if self.link is not None:
+                    self.link.report(e)  # a device that went away: reconnect
                 try:
                     query.reply_err(encode(Reply.failure(e)), encoding=JSON)
                 except Exception:

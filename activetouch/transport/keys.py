@@ -27,7 +27,8 @@ widen a subscription or a query to other robots.
 | status | queryable (daemon) | Empty -> Reply[Status] |
 | estop | queryable (daemon) | EStopRequest -> Reply[EStopResult] |
 | sim/place | queryable (simulated devices only) | SimPlaceRequest -> Reply[SimPlaceResult] |
-| alive/<node> | liveliness token | (none) |
+| alive/<node> | liveliness token (a device node: only while its device is connected) | (none) |
+| health/<node> | publication (on change, and while not connected) and queryable | DeviceHealth |
 | requests/<session_id> | liveliness token (the requesting client) | (none) |
 | calibrate/<kind> | queryable (tactile fingers mount object) | CalibrateRequest -> Reply |
 """
@@ -178,6 +179,14 @@ class Keys:
     def alive(self, node: str) -> str:
         """Liveliness token key of node `node` (hand, arm, daemon, ...)."""
         return self._k("alive", validate_node(node))
+
+    def health(self, node: str) -> str:
+        """A device node's `DeviceHealth`: connected, waiting or lost, and why."""
+        return self._k("health", validate_node(node))
+
+    @property
+    def health_all(self) -> str:
+        return self._k("health", "*")
 
     def requester(self, session_id: str) -> str:
         """Liveliness token a client holds while it waits for recognition `session_id`: the

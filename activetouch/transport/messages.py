@@ -38,6 +38,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "CancelRequest",
     "CancelResult",
+    "DeviceHealth",
     "EStopRequest",
     "EStopResult",
     "Empty",
@@ -365,9 +366,29 @@ class EStopResult(Message, kw_only=True):
     errors: Annotated[list[ErrorText], msgspec.Meta(max_length=32)] = []
 
 
+DeviceLinkState = Literal["connected", "waiting", "lost", ""]
+
+
 class NodeHealth(Message, kw_only=True):
     alive: bool
     detail: Text = ""
+    # A device node: connected, waiting (never connected yet) or lost, and since when
+    # (wall clock, Unix seconds); "" for nodes that are no device (daemon, sim).
+    state: DeviceLinkState = ""
+    since: float | None = None
+    device: Label = ""  # the device type (hand.type / arm.type)
+
+
+class DeviceHealth(Message, kw_only=True):
+    """What a device node says of its device (``health/<node>``): published on each change and
+    while it is not connected; the daemon's status shows it."""
+
+    node: Name
+    device: Label
+    state: DeviceLinkState
+    detail: Text = ""  # why it is waiting or lost (the last connection error)
+    since: float = 0.0  # wall clock, Unix seconds, of the last change of state
+    attempts: NonNegInt = 0  # connection attempts since the last change
 
 
 class SessionSummary(Message, kw_only=True):

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from activetouch.errors import ActiveTouchError, NodeUnavailableError
+from activetouch.errors import DeviceFaultError, NodeUnavailableError
 from activetouch.interfaces import HandState
 
 STOP_CONTACT = "contact"
@@ -22,7 +22,7 @@ class StreamLostError(NodeUnavailableError):
     """The hand stopped answering: no state packet (or servo reply) within the timeout."""
 
 
-class ServoFaultError(ActiveTouchError):
+class ServoFaultError(DeviceFaultError):
     """A servo reading that cannot be true (unanswered, outside its window or travel, an alarm
     or over-temperature): the hand stopped; the message names the servo and what to check."""
 
