@@ -192,9 +192,11 @@ class DeviceLink:
         self._bad_since = None
 
     def _try_connect(self) -> None:
+        # Without the devices' lock: a connection may take seconds (Baxter waits for its first
+        # joint state) and the other device's commands must not wait for it; this device's
+        # commands are refused until it is connected, so none runs beside the connect.
         try:
-            with self._lock:
-                self.device.connect()
+            self.device.connect()
         except Exception as e:
             state = WAITING if self._state == WAITING else LOST
             self._set(state, _why(e))

@@ -458,7 +458,7 @@ def test_killed_node_fails_the_pending_request(trained_home: Path, tmp_path: Pat
             assert st.nodes["hand"].state == "lost" and "went away" in st.nodes["hand"].detail
             # The daemon goes on serving: a new request fails at once, with the reason.
             # (refused at admission: a timeout would say so, not this)
-            with pytest.raises(NodeUnavailableError, match="the hand is lost.*nothing was moved"):
+            with pytest.raises(NodeUnavailableError, match=r"the hand is lost.*nothing was moved"):
                 c.recognize(RecognizeRequest(policy="tree", max_moves=3, object="cup"), timeout=30)
         assert svc.stop() == 0, svc.text()
     finally:

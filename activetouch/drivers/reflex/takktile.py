@@ -404,6 +404,7 @@ class ReflexTakktileHand(Hand):
         self._rearming = False
         self._unwrap = kinematics.EncoderUnwrapper()
         self._last_systime: int | None = None
+        self._link_armed = False  # armed since this link was opened (a restart re-arms then)
         self._load = np.zeros(4)
         self._goal = np.zeros(4)  # last commanded spool / preshape targets
         self._preshape_target: float | None = None
@@ -498,7 +499,7 @@ class ReflexTakktileHand(Hand):
         time.sleep(cfg.mode_switch_sleep_s)
         with self._cond:
             self._goal = hold
-            self._armed = True
+            self._armed = self._link_armed = True
             self.counts["position_switches"] += 1
             self._cond.notify_all()
 
@@ -580,7 +581,10 @@ class ReflexTakktileHand(Hand):
             self._sock = None
         with self._cond:
             self._stale = True
-            self._armed = False
+            self._armed = self._link_armed = False
+            # A reconnection starts afresh: the board may have rebooted meanwhile, which is
+            # not a restart under a live link (connect arms it once).
+            self._last_systime = None
             self._cond.notify_all()
 
     @property
@@ -659,7 +663,7 @@ class ReflexTakktileHand(Hand):
         self._notify()
 
     def _was_armed_once(self) -> bool:
-        return self.counts["position_switches"] > 0 and self._running
+        return self._link_armed and self._running
 
     def _set_fault(self, err: ServoFaultError) -> None:
         """Latch a servo fault: stop, wake waiting commands; nothing is commanded from the
