@@ -1,6 +1,7 @@
-"""`activetouch calibrate tactile|fingers|mount|object|show`: measure a calibration with the
-configured devices, store it per device (``<data>/calibration/<device>/<kind>.json``), make
-the running driver use it, or print what is stored."""
+"""`activetouch calibrate tactile|fingers|mount|object|show|import`: measure a calibration with
+the configured devices, store it per device (``<data>/calibration/<device>/<kind>.json``),
+make the running driver use it, print what is stored, or import a lab's reflex-ros-pkg
+calibration files."""
 
 from __future__ import annotations
 
@@ -26,8 +27,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Measure a calibration with the configured hand/arm and store it, or show "
         "the stored ones. docs/calibration.md says what each procedure does.",
     )
-    p.add_argument("what", choices=(*PROCEDURES, "show"))
-    p.add_argument("kind", nargs="?", choices=PROCEDURES, help="show: only this kind")
+    p.add_argument("what", choices=(*PROCEDURES, "show", "import"))
+    p.add_argument(
+        "kind",
+        nargs="?",
+        help="show: only this kind; import: a reflex-ros-pkg yaml file "
+        "(reflex_sf_motor_zero_points.yaml, finger_calibrate.yaml, tactile_calibrate.yaml)",
+    )
+    p.add_argument("files", nargs="*", help="import: more yaml files")
+    p.add_argument(
+        "--accept-current",
+        action="store_true",
+        help="fingers, ReFlex SF: take the servos' present positions as the zero points (the "
+        "fingers are already open, tendons just taut) instead of jogging each one",
+    )
     p.add_argument("--device", default=None, help="device name (default: the hand type)")
     p.add_argument("--json", action="store_true", help="print the record as JSON")
     p.add_argument("--dry-run", action="store_true", help="measure and print, store nothing")
@@ -62,9 +75,15 @@ def run(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     root = paths.data_dir(args.data)
     if args.what == "show":
+        if args.kind is not None and args.kind not in PROCEDURES:
+            raise ActiveTouchError(
+                f"calibrate show {args.kind}: not a kind; use one of {', '.join(PROCEDURES)}"
+            )
         return show(root, args.kind, args.json, console)
     cfg = load_config(args.config, args.overrides)
     device = device_name(cfg, args.device)
+    if args.what == "import":
+        return run_import(root, device, [args.kind, *args.files], args, console)
     if args.what == "tactile":
         rec = run_tactile(cfg, root, device, args, console)
     elif args.what == "fingers":
@@ -118,9 +137,65 @@ def run_tactile(cfg, root, device, args, console):
     return rec
 
 
+def run_import(root, device, files, args, console) -> int:
+    from pathlib import Path
+
+    from activetouch.calibration import store
+    from activetouch.calibration.upstream_files import import_file
+
+    if not files or files[0] is None:
+        raise ActiveTouchError("calibrate import: name the reflex-ros-pkg yaml file(s)")
+    records = [import_file(Path(f), device) for f in files]  # all read before any is stored
+    for f, rec in zip(files, records, strict=True):
+        if args.json:
+            print(rec.to_json(), end="")
+        line = f"{f}: {rec.kind} of {device} ({rec.method['format']})"
+        if args.dry_run:
+            console.print(line + ", not stored (--dry-run)")
+        else:
+            console.print(f"{line} -> {store.save(root, rec)}")
+    return 0
+
+
+def run_sf_fingers(cfg, root, device, args, console):
+    from activetouch.calibration.sf_fingers import JOG_STEPS, calibrate_sf_fingers
+    from activetouch.devices import DeviceContext
+
+    ctx = DeviceContext(cfg, root)
+    hand = cfg.hand.make(ctx)
+    hand.check_travel = False  # the zero points are what is being found
+    hand.connect()
+
+    def ask(k: int, name: str, pos: float) -> str:
+        if args.accept_current:
+            return ""
+        keys = "/".join(JOG_STEPS)
+        return input(
+            f"{name} (servo {k + 1}) at {pos:.3f} motor rad: {keys} tighten/loosen (capital: "
+            "5 steps), Enter when open with the tendon just taut > "
+        )
+
+    try:
+        rec = calibrate_sf_fingers(hand, device, ask)
+    except EOFError:
+        raise ActiveTouchError(
+            "calibrate fingers: no terminal to jog from; use --accept-current"
+        ) from None
+    finally:
+        hand.disconnect()
+        ctx.close()
+    console.print(
+        f"fingers {device}: zero points {rec.values['motor_zero_points']} motor rad "
+        f"(hand.motor_zero_points; moved {rec.quality['moved_motor_rad']})"
+    )
+    return rec
+
+
 def run_fingers(cfg, root, device, args, console):
     from activetouch.calibration.fingers import calibrate_fingers
 
+    if cfg.hand.type == "reflex-sf":
+        return run_sf_fingers(cfg, root, device, args, console)
     hand, ctx = _hand(cfg, root)
     try:
         rec, fit = calibrate_fingers(hand, device)

@@ -90,6 +90,10 @@ STANDARD_BAUDS = (
 )
 
 
+# Motor radians with the hand open: reflex-ros-pkg's public reflex_sf_motor_zero_points.yaml.
+DEFAULT_ZERO_POINTS = [25.21, 26.17, 23.58, 23.46]
+
+
 @dataclass
 class ReflexSFConfig(HandConfig):
     """Settings of a ReFlex SF (docs/protocols/reflex.md)."""
@@ -104,9 +108,13 @@ class ReflexSFConfig(HandConfig):
     motor_inverted: list[int] = field(default_factory=lambda: [1, -1, 1, -1])
     # Motor radians with the hand open, as upstream stores them (reflex_sf_motor_zero_points.yaml;
     # these are its public values): replace them with your hand's, or `calibrate fingers`.
-    motor_zero_points: list[float] = field(default_factory=lambda: [25.21, 26.17, 23.58, 23.46])
+    motor_zero_points: list[float] = field(default_factory=lambda: list(DEFAULT_ZERO_POINTS))
     motor_zero_rad: list[float] | None = None  # gone (it was joint-side): check() says so
     motor_travel_rad: list[float] = field(default_factory=lambda: [3.75, 3.75, 3.75, 1.75])
+    # Use the zero points stored by `calibrate fingers` / `calibrate import` (per device name
+    # `serial`, else the type) unless hand.motor_zero_points is set to other than the default.
+    load_calibration: bool = True
+    serial: str = ""
     # A reading further than this (joint rad) outside [0, travel] cannot be the hand's.
     plausible_margin_rad: float = 0.5
     max_temperature_c: int = 70
@@ -177,7 +185,41 @@ class ReflexSFConfig(HandConfig):
 
     def make(self, ctx: DeviceContext) -> Hand:
         self.check()
-        return ReflexSFHand(self)
+        cfg = self
+        if self.load_calibration:
+            cfg = with_stored_zero_points(self, ctx.data)
+        return ReflexSFHand(cfg)
+
+
+def with_stored_zero_points(cfg: ReflexSFConfig, data: object) -> ReflexSFConfig:
+    """`cfg` with the stored finger calibration's zero points, when there is one and the
+    configuration did not set its own (a setting given explicitly wins, and says so)."""
+    import dataclasses
+
+    from activetouch import paths
+    from activetouch.calibration import store
+
+    device = cfg.serial or cfg.type
+    rec = store.load(paths.data_dir(data), "fingers", device)  # type: ignore[arg-type]
+    if rec is None or "motor_zero_points" not in rec.values:
+        log.warning(
+            "ReFlex SF: no finger calibration stored for %s: using hand.motor_zero_points %s "
+            "(`activetouch calibrate fingers` or `calibrate import` makes one)",
+            device,
+            cfg.motor_zero_points,
+        )
+        return cfg
+    stored = [float(v) for v in rec.values["motor_zero_points"]]
+    if list(cfg.motor_zero_points) != DEFAULT_ZERO_POINTS:
+        log.warning(
+            "ReFlex SF: hand.motor_zero_points is set (%s): the stored calibration (%s) is not "
+            "used",
+            cfg.motor_zero_points,
+            stored,
+        )
+        return cfg
+    log.info("ReFlex SF: zero points %s from the calibration of %s", stored, rec.measured_at)
+    return dataclasses.replace(cfg, motor_zero_points=stored)
 
 
 def joint_angles(
@@ -247,8 +289,13 @@ class ServoReading:
 
 
 class ReflexSFHand(Hand):
-    def __init__(self, cfg: ReflexSFConfig) -> None:
+    """`check_travel=False` (finger calibration only): readings are not checked against the
+    travel window of zero points that may be wrong; alarms, temperature and unanswered servos
+    still are."""
+
+    def __init__(self, cfg: ReflexSFConfig, check_travel: bool = True) -> None:
         self.cfg = cfg
+        self.check_travel = check_travel
         self.ids = [int(i) for i in cfg.motor_ids]
         self.gear = np.asarray(cfg.gear_ratio, dtype=np.float64)
         self.inverted = np.asarray(cfg.motor_inverted, dtype=np.float64)
@@ -358,6 +405,8 @@ class ReflexSFHand(Hand):
 
     def _check(self, r: tuple[np.ndarray, ...]) -> str | None:
         joint = joint_angles(r[0], self.zero, self.gear, self.inverted)
+        if not self.check_travel:
+            joint = np.zeros(4)  # calibrating: the zero points are what is being found
         for k, i in enumerate(self.ids):
             bad = implausible(
                 self.cfg, i, int(r[0][k]), float(joint[k]), int(r[2][k]), int(r[3][k])
@@ -522,6 +571,38 @@ class ReflexSFHand(Hand):
                 self._cond.wait(min(left, 0.05))
 
     # -- Hand interface -------------------------------------------------------------------
+
+    # -- finger calibration (activetouch.calibration.sf_fingers) --------------------------
+
+    def motor_positions(self) -> np.ndarray:
+        """The servos' present positions in motor radians (upstream's zero_point units)."""
+        r = self._wait(-1, check_stop=False)
+        return r.raw_position.astype(np.float64) * MX28_SCALE
+
+    def jog(self, servo: int, delta_motor_rad: float) -> np.ndarray:
+        """Turn servo `servo` (index 0-3) by `delta_motor_rad` from where it is (positive
+        tightens its tendon), one small step at a time; returns the new motor positions.
+        Steps are bounded: a calibration jog never moves a servo more than 0.5 rad at once."""
+        if not (np.isfinite(delta_motor_rad) and abs(delta_motor_rad) <= 0.5):
+            raise ValueError(f"ReFlex SF: a jog of {delta_motor_rad} rad is not a small step")
+        r = self._wait(-1)
+        self._arm(r)
+        raw = r.raw_position.copy()
+        raw[servo] += round(float(self.inverted[servo]) * delta_motor_rad / MX28_SCALE)
+        self._write_goals(raw)
+        deadline = time.monotonic() + self.cfg.move_timeout_s
+        while time.monotonic() < deadline:
+            r = self._wait(r.seq)
+            if abs(int(r.raw_position[servo]) - int(raw[servo])) <= 8:
+                break
+        return r.raw_position.astype(np.float64) * MX28_SCALE
+
+    def set_motor_zero_points(self, zero_points: np.ndarray) -> None:
+        """Use these zero points (motor radians, per servo) from now on."""
+        z = np.asarray(zero_points, dtype=np.float64)
+        if z.shape != (4,) or not np.all((z > 0) & (z <= RAW_MAX * MX28_SCALE)):
+            raise ValueError(f"ReFlex SF: zero points {z.tolist()} are not 4 servo positions")
+        self.zero = z
 
     def stop(self) -> None:
         self.stop_latch.set()
