@@ -28,6 +28,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "activetouch.cli.commands.serve",
     "activetouch.cli.commands.emulate",
     "activetouch.cli.commands.calibrate",
+    "activetouch.cli.commands.hardware",
 )
 
 

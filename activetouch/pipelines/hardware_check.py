@@ -1,0 +1,278 @@
+"""Bring-up check (`activetouch hardware check`): walk the configured hand and arm step by step
+and say what is wrong and the command that fixes it.
+
+Nothing moves: connecting a driver commands no motion (a hand holds where it is, Baxter's
+arm only listens), and the check only reads. Each step is a `Step`: ok, warn (works, but
+look at it) or fail (the robot cannot be used so), with what it measured and the fix.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from activetouch.calibration import store
+from activetouch.config import Config
+from activetouch.devices import DeviceContext
+
+OK, WARN, FAIL, SKIP = "ok", "warn", "fail", "skip"
+
+
+@dataclass
+class Step:
+    device: str  # hand | arm
+    name: str
+    status: str  # ok | warn | fail | skip
+    detail: str
+    fix: str = ""
+
+    def as_dict(self) -> dict[str, str]:
+        return asdict(self)
+
+
+# What to look at when a device does not connect, by type.
+CONNECT_FIX = {
+    "reflex-takktile": "power the hand, check its Ethernet link and that hand.state_listen / "
+    "hand.multicast_group / hand.interface are this PC's (docs/drivers.md)",
+    "reflex-sf": "plug the hand's USB, check hand.port (ls /dev/ttyUSB*) and that you may open "
+    "it (the dialout group)",
+    "baxter": "start Baxter and zenoh-bridge-ros1 on its ROS master, and check arm.connect is "
+    "the bridge's Zenoh endpoint (docs/protocols/baxter.md)",
+}
+STREAM_HZ = {"reflex-takktile": 40.0, "reflex-sf": 40.0, "baxter": 100.0}
+
+
+def stream_rate(read: Callable[[], Any], seconds: float, stamp: Callable[[Any], float]) -> float:
+    """Distinct readings per second seen by polling `read` for `seconds`."""
+    seen: set[float] = set()
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        with contextlib.suppress(Exception):  # a lost stream shows as a low rate
+            seen.add(float(stamp(read())))
+        time.sleep(0.002)
+    return len(seen) / seconds
+
+
+def _connect(kind: str, dev_type: str, make: Callable[[], Any]) -> tuple[Any, Step]:
+    fix = CONNECT_FIX.get(dev_type, "")
+    try:
+        dev = make()
+    except Exception as e:
+        return None, Step(
+            kind, "settings", FAIL, f"{type(e).__name__}: {e}", "fix the setting named"
+        )
+    t = time.monotonic()
+    try:
+        dev.connect()
+    except Exception as e:
+        text = f"{type(e).__name__}: {e}"
+        # A fault names what to check itself (servo, zero points, calibration).
+        return None, Step(kind, "connect", FAIL, text, "" if "Fault" in text else fix)
+    return dev, Step(kind, "connect", OK, f"{dev_type} connected in {time.monotonic() - t:.1f} s")
+
+
+def check_hand(cfg: Config, root: Path, ctx: DeviceContext, seconds: float) -> list[Step]:
+    hand_type = cfg.hand.type
+    steps: list[Step] = []
+    hand, step = _connect("hand", hand_type, lambda: cfg.hand.make(ctx))
+    steps.append(step)
+    if hand is None:
+        return steps
+    try:
+        expected = STREAM_HZ.get(hand_type)
+        hz = stream_rate(hand.state, seconds, lambda s: s.stamp)
+        st = hand.state()
+        if getattr(st, "stale", False) or hz == 0:
+            steps.append(
+                Step(
+                    "hand",
+                    "stream",
+                    FAIL,
+                    f"no fresh state ({hz:.0f} Hz)",
+                    CONNECT_FIX.get(hand_type, ""),
+                )
+            )
+        elif expected and hz < expected / 2:
+            steps.append(
+                Step(
+                    "hand",
+                    "stream",
+                    WARN,
+                    f"{hz:.0f} Hz (expected ~{expected:g})",
+                    "check the link's load and cabling",
+                )
+            )
+        else:
+            steps.append(Step("hand", "stream", OK, f"{hz:.0f} Hz"))
+        fault = getattr(hand, "fault", None)
+        steps.append(
+            Step(
+                "hand", "servo readings", FAIL, str(fault), "power-cycle the hand; see the message"
+            )
+            if fault
+            else Step(
+                "hand", "servo readings", OK, "plausible (checked at connect and on every reading)"
+            )
+        )
+        if cfg.hand.simulated:
+            return steps
+        device = store.device_name(cfg, None)
+        kinds = ("tactile", "fingers") if hand_type == "reflex-takktile" else ("fingers",)
+        for kind in kinds:
+            rec = store.load(root, kind, device)
+            why = store.staleness(rec, kind)
+            if rec is None:
+                if kind == "tactile" and getattr(cfg.hand, "zero_on_connect", False):
+                    steps.append(
+                        Step(
+                            "hand",
+                            "tactile calibration",
+                            OK,
+                            "zeroed at connect (hand.zero_on_connect)",
+                        )
+                    )
+                    continue
+                status = FAIL if kind == "tactile" else WARN
+                detail = f"none stored for {device}"
+                if kind == "fingers":
+                    detail += " (the configured zero points are used)"
+                steps.append(
+                    Step(
+                        "hand",
+                        f"{kind} calibration",
+                        status,
+                        detail,
+                        f"activetouch calibrate {kind} (or calibrate import FILE)",
+                    )
+                )
+            else:
+                age = rec.age_days()
+                steps.append(
+                    Step(
+                        "hand",
+                        f"{kind} calibration",
+                        WARN if why else OK,
+                        f"{rec.method.get('procedure', kind)} of {rec.measured_at[:19]} "
+                        f"({age:.1f} days old)",
+                        f"activetouch calibrate {kind}" if why else "",
+                    )
+                )
+        masked = getattr(hand, "masked", None)
+        if masked is not None and int(masked.sum()):
+            ids = [int(i) for i in masked.nonzero()[0]]
+            steps.append(
+                Step(
+                    "hand",
+                    "contacts at rest",
+                    WARN,
+                    f"sensors {ids} read contact with the hand open: masked",
+                    "activetouch calibrate tactile",
+                )
+            )
+        elif hand_type == "reflex-takktile":
+            n = int(hand.state().contact.sum())
+            steps.append(
+                Step(
+                    "hand",
+                    "contacts at rest",
+                    FAIL if n else OK,
+                    f"{n} sensors in contact with nothing touching",
+                    "activetouch calibrate tactile" if n else "",
+                )
+            )
+    finally:
+        hand.disconnect()
+    return steps
+
+
+def check_arm(cfg: Config, ctx: DeviceContext, seconds: float) -> list[Step]:
+    arm_type = cfg.arm.type
+    steps: list[Step] = []
+    arm, step = _connect("arm", arm_type, lambda: cfg.arm.make(ctx))
+    steps.append(step)
+    if arm is None:
+        return steps
+    try:
+        expected = STREAM_HZ.get(arm_type)
+        hz = stream_rate(arm.joint_state, seconds, lambda s: s.stamp)
+        if hz == 0:
+            steps.append(
+                Step("arm", "joint states", FAIL, "none fresh", CONNECT_FIX.get(arm_type, ""))
+            )
+        elif expected and hz < expected / 2:
+            steps.append(
+                Step(
+                    "arm",
+                    "joint states",
+                    WARN,
+                    f"{hz:.0f} Hz (expected ~{expected:g})",
+                    "check the bridge's network",
+                )
+            )
+        else:
+            steps.append(Step("arm", "joint states", OK, f"{hz:.0f} Hz"))
+        fmt = getattr(arm, "bridge_format", None)
+        if fmt is not None:
+            ns = getattr(arm, "bridge_namespace", "")
+            steps.append(
+                Step(
+                    "arm",
+                    "bridge keys",
+                    OK,
+                    f"{fmt}{f' (namespace {ns!r})' if ns else ''}; arm.bridge_format = "
+                    f"{getattr(cfg.arm, 'bridge_format', '?')}",
+                )
+            )
+            steps.append(
+                Step(
+                    "arm",
+                    "commands bridged",
+                    SKIP,
+                    "not checked (it takes a motion); a bridge that forwards no joint_command is "
+                    "named at the first move (zenoh-plugin-ros1 #92)",
+                    "run the bridge with mode auto and a ROS publisher-side bridge of "
+                    "/robot/limb/<side>/joint_command",
+                )
+            )
+        robot_state = getattr(arm, "robot_state", None)
+        if callable(robot_state):
+            rs = robot_state()
+            if rs is None:
+                steps.append(
+                    Step(
+                        "arm",
+                        "robot state",
+                        FAIL,
+                        "no /robot/state",
+                        "check the bridge bridges /robot/state",
+                    )
+                )
+            elif rs.stopped or rs.error or not rs.enabled:
+                steps.append(
+                    Step(
+                        "arm",
+                        "robot state",
+                        FAIL,
+                        rs.describe(),
+                        "release the e-stop, then enable the robot (rosrun baxter_tools "
+                        "enable_robot.py -e, or arm.enable_on_connect = true)",
+                    )
+                )
+            else:
+                steps.append(Step("arm", "robot state", OK, rs.describe()))
+    finally:
+        arm.disconnect()
+    return steps
+
+
+def hardware_check(cfg: Config, root: Path, seconds: float = 1.0) -> list[Step]:
+    """Every step for the configured hand and arm (a simulated one is checked as well, briefly)."""
+    ctx = DeviceContext(cfg, root)
+    try:
+        return check_hand(cfg, root, ctx, seconds) + check_arm(cfg, ctx, seconds)
+    finally:
+        ctx.close()
