@@ -80,6 +80,12 @@ def capture() -> dict:
         for gname, g in GEOMETRIES.items()
         for links in (True, False)
     }
+    # The texts too: a refactor may reorder elements inside a link and change no number.
+    out["urdf_text"] = {
+        f"{gname}/{links}": build_urdf(g, links)
+        for gname, g in GEOMETRIES.items()
+        for links in (True, False)
+    }
     return out
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -150,6 +151,22 @@ def test_driver_contact_sites_are_the_urdf_sites_in_pybullet(bullet, config) -> 
     np.testing.assert_allclose(
         contact_sites(pre, np.array(prox), np.array(dist)), np.array(got), atol=URDF_TOL
     )
+
+
+def canonical_urdf(text: str) -> list:
+    """Links and joints with their elements, order inside a link ignored (numbers as printed)."""
+
+    def canon(e: ET.Element) -> tuple:
+        return (e.tag, tuple(sorted(e.attrib.items())), tuple(sorted(canon(c) for c in e)))
+
+    return [canon(e) for e in ET.fromstring(text)]
+
+
+@pytest.mark.parametrize("key", list(PINS["urdf_text"]))
+def test_the_urdf_is_the_pinned_one(key: str) -> None:
+    gname, links = key.split("/")
+    got = build_urdf(GEOMETRIES[gname], links == "True")
+    assert canonical_urdf(got) == canonical_urdf(PINS["urdf_text"][key])
 
 
 def test_the_copies_give_the_pinned_numbers() -> None:
