@@ -1,11 +1,11 @@
-"""The ReFlex hand model's copies pinned before the house refactor: collision boxes of the
-calibration (hand_boxes), of motion planning (reflex_boxes), the probing corners (hand_points),
-the driver's contact sites (contact_sites), against the URDF in PyBullet and against the numbers
-they gave at the time (reflex_pins.json, written by make_reflex_pins.py)."""
+"""The ReFlex hand model (`activetouch.models.reflex`) is the one source of the hand's collision
+boxes and kinematics: checked against the URDF it writes, loaded in PyBullet DIRECT mode, and
+against what the copies it replaced gave (reflex_pins.json: calibration's hand_boxes, probing's
+hand_points, planning's reflex_boxes, the drivers' contact_sites and build_urdf's text, written
+at commit 8d223b7 by tests/models/make_reflex_pins.py, deleted since with the copies)."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -15,19 +15,24 @@ import pybullet as pb
 import pytest
 from scipy.spatial.transform import Rotation
 
-from activetouch.calibration.object_frame import hand_boxes
+from activetouch.calibration.object_frame import Boxes, box_sdf, hand_boxes
 from activetouch.calibration.probing import hand_points
-from activetouch.drivers.reflex.kinematics import contact_sites
 from activetouch.models.reflex import (
+    DEFAULT_GEOMETRY,
     DISTAL_SENSOR_X_GAZEBO,
     DISTAL_SENSOR_Z_GAZEBO,
+    Box,
     ReflexGeometry,
     build_urdf,
+    collision_boxes,
     geometry_with_distal_sites,
+    link_boxes,
+    link_frames,
+    rot_y,
     sensor_link_name,
+    sensor_positions,
     urdf_file,
 )
-from activetouch.planning.motion.robot import reflex_boxes
 
 PINS = json.loads(Path(__file__).with_name("reflex_pins.json").read_text())
 GEOMETRIES = {
@@ -39,9 +44,17 @@ EXACT = 1e-9  # the dedupe may reorder float operations, nothing more
 URDF_TOL = 3e-6  # the URDF prints 6 significant digits (pi as 3.14159: 2.7e-6 off)
 
 
+def stacked(boxes: list[Box]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return (
+        np.array([b.rotation for b in boxes]),
+        np.array([b.position for b in boxes]),
+        np.array([b.half for b in boxes]),
+    )
+
+
 @pytest.fixture(scope="module")
 def bullet(tmp_path_factory):
-    """`load(geom)` -> (client, body, {joint name: index}, {link name: index}) in DIRECT mode."""
+    """`load(gname)` -> (client, body, {joint name: index}, {link name: index})."""
     c = pb.connect(pb.DIRECT)
     root = tmp_path_factory.mktemp("urdf")
     bodies: dict[str, tuple] = {}
@@ -94,52 +107,35 @@ def bullet_boxes(load, gname: str, pre: float, prox, dist):
 
 @pytest.mark.parametrize("gname", list(GEOMETRIES))
 @pytest.mark.parametrize("config", CONFIGS)
-def test_calibration_boxes_are_the_urdf_boxes_in_pybullet(bullet, gname, config) -> None:
+def test_collision_boxes_are_the_urdf_boxes_in_pybullet(bullet, gname, config) -> None:
     pre, prox, dist = config
-    b = hand_boxes(GEOMETRIES[gname], pre, prox, dist)
-    rot, centre, half = bullet_boxes(bullet, gname, pre, prox, dist)
-    np.testing.assert_allclose(b.centre, centre, atol=URDF_TOL)
-    np.testing.assert_allclose(b.half, half, atol=URDF_TOL)
-    np.testing.assert_allclose(b.rot, rot, atol=URDF_TOL)
+    rot, centre, half = stacked(collision_boxes(GEOMETRIES[gname], pre, prox, dist))
+    b_rot, b_centre, b_half = bullet_boxes(bullet, gname, pre, prox, dist)
+    np.testing.assert_allclose(centre, b_centre, atol=URDF_TOL)
+    np.testing.assert_allclose(half, b_half, atol=URDF_TOL)
+    np.testing.assert_allclose(rot, b_rot, atol=URDF_TOL)
 
 
-@pytest.mark.parametrize("pre", [0.0, 0.8, 1.6])
-def test_planning_boxes_today_against_the_urdf_ones(pre: float) -> None:
-    """reflex_boxes agrees with the URDF on housing, pad and proximal links; it has no swivels,
-    and each distal link is one box to the full distal length instead of distal box plus the
-    tilted fingertip box."""
-    urdf = hand_boxes(None, pre)
-    plan = {n: (t, np.asarray(lo), np.asarray(hi)) for n, t, lo, hi in reflex_boxes(pre)}
-    assert len(plan) == 8 and len(urdf) == 13
-    # hand_boxes order: housing, pad, then per finger [swivel], proximal, distal, fingertip.
-    order = {"housing": 0, "pad": 1}
-    i = 2
-    for f in range(3):
-        i += f < 2
-        order[f"proximal_{f}"], order[f"distal_{f}"] = i, i + 1
-        i += 3
-    for name, k in order.items():
-        t, lo, hi = plan[f"reflex_{name}"]
-        if name.startswith("distal"):
-            assert hi[0] == ReflexGeometry().distal_size[0] > ReflexGeometry().chamfer_start_x
-            continue
-        np.testing.assert_allclose(t[:3, :3], urdf.rot[k], atol=EXACT)
-        np.testing.assert_allclose(t[:3, :3] @ (lo + hi) / 2 + t[:3, 3], urdf.centre[k], atol=EXACT)
-        np.testing.assert_allclose((hi - lo) / 2, urdf.half[k], atol=EXACT)
+@pytest.mark.parametrize("gname", list(GEOMETRIES))
+@pytest.mark.parametrize("config", CONFIGS)
+def test_link_frames_are_pybullets(bullet, gname, config) -> None:
+    pre, prox, dist = config
+    c, body, links = pose_bullet(bullet, gname, pre, prox, dist)
+    frames = link_frames(GEOMETRIES[gname], pre, prox, dist)
+    assert set(frames) == {b.link for b in link_boxes(GEOMETRIES[gname])}
+    for name, t in frames.items():
+        if links[name] < 0:
+            continue  # the base frame is the hand frame by definition
+        s = pb.getLinkState(body, links[name], computeForwardKinematics=True, physicsClientId=c)
+        np.testing.assert_allclose(t[:3, 3], s[4], atol=URDF_TOL, err_msg=name)
+        np.testing.assert_allclose(
+            t[:3, :3], Rotation.from_quat(s[5]).as_matrix(), atol=URDF_TOL, err_msg=name
+        )
 
 
 @pytest.mark.parametrize("config", CONFIGS)
-def test_probing_points_are_the_finger_box_corners(config) -> None:
-    pre, prox, dist = config
-    b = hand_boxes(None, pre, prox, dist)
-    signs = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
-    fingers = [k for k in range(len(b)) if k >= 2 and k not in (2, 6)]  # not housing, pad, swivels
-    corners = [b.centre[k] + ((2 * signs - 1) * b.half[k]) @ b.rot[k].T for k in fingers]
-    np.testing.assert_allclose(hand_points(pre, prox, dist), np.concatenate(corners), atol=EXACT)
-
-
-@pytest.mark.parametrize("config", CONFIGS)
-def test_driver_contact_sites_are_the_urdf_sites_in_pybullet(bullet, config) -> None:
+def test_sensor_positions_are_the_urdf_sites_in_pybullet(bullet, config) -> None:
+    """What the drivers place contacts with (the default geometry)."""
     pre, prox, dist = config
     c, body, links = pose_bullet(bullet, "default", pre, prox, dist)
     got = [
@@ -149,8 +145,72 @@ def test_driver_contact_sites_are_the_urdf_sites_in_pybullet(bullet, config) -> 
         for s in range(38)
     ]
     np.testing.assert_allclose(
-        contact_sites(pre, np.array(prox), np.array(dist)), np.array(got), atol=URDF_TOL
+        sensor_positions(DEFAULT_GEOMETRY, pre, prox, dist), np.array(got), atol=URDF_TOL
     )
+
+
+def test_the_model_gives_the_copies_pinned_numbers() -> None:
+    for p in PINS["hand_boxes"]:
+        pre, prox, dist = p["config"]
+        g = GEOMETRIES[p["geometry"]]
+        rot, centre, half = stacked(collision_boxes(g, pre, prox, dist))
+        calib = hand_boxes(g, pre, prox, dist)
+        for got in ((rot, centre, half), (calib.rot, calib.centre, calib.half)):
+            np.testing.assert_allclose(got[0], p["rot"], rtol=0, atol=EXACT)
+            np.testing.assert_allclose(got[1], p["centre"], rtol=0, atol=EXACT)
+            np.testing.assert_allclose(got[2], p["half"], rtol=0, atol=EXACT)
+    for p in PINS["hand_points"]:
+        pre, prox, dist = p["config"]
+        np.testing.assert_allclose(hand_points(pre, prox, dist), p["points"], rtol=0, atol=EXACT)
+    for p in PINS["contact_sites"]:  # the drivers' sites: the default geometry
+        pre, prox, dist = p["config"]
+        got = sensor_positions(DEFAULT_GEOMETRY, pre, prox, dist)
+        np.testing.assert_allclose(got, p["sites"], rtol=0, atol=EXACT)
+
+
+@pytest.mark.parametrize("pinned", PINS["reflex_boxes"], ids=lambda p: f"preshape{p['preshape']}")
+def test_planning_boxes_against_its_old_copy(pinned: dict) -> None:
+    """Planning now collides the URDF's boxes (robot.load_arm: collision_boxes of the open
+    hand, named reflex_<name>). Its old copy had no swivels and one box per distal link to the
+    full distal length: housing, pad and proximal boxes are unchanged; the URDF's boxes lie
+    inside the old ones; the old square fingertips reached up to 5.5 mm past the chamfered
+    fingertips the twin collides."""
+    new = collision_boxes(None, pinned["preshape"])
+    by_name = {f"reflex_{b.name}": b for b in new}
+    old = pinned["boxes"]
+    assert len(old) == 8 and len(new) == 13 and {o["name"] for o in old} <= set(by_name)
+    for o in old:
+        t, lo, hi = np.array(o["pose"]), np.array(o["lo"]), np.array(o["hi"])
+        if "distal" in o["name"]:
+            continue
+        b = by_name[o["name"]]
+        np.testing.assert_allclose(b.rotation, t[:3, :3], rtol=0, atol=EXACT)
+        np.testing.assert_allclose(b.position, t[:3, :3] @ (lo + hi) / 2 + t[:3, 3], atol=EXACT)
+        np.testing.assert_allclose(b.half, (hi - lo) / 2, rtol=0, atol=EXACT)
+    # Containment, on random points inside each box.
+    rng = np.random.default_rng(0)
+
+    def inside(rot, centre, half, n: int) -> np.ndarray:
+        return np.concatenate(
+            [
+                rng.uniform(-1, 1, (n, 3)) * h @ r.T + c
+                for r, c, h in zip(rot, centre, half, strict=True)
+            ]
+        )
+
+    old_rot = np.array([np.array(o["pose"])[:3, :3] for o in old])
+    old_centre = np.array(
+        [
+            r @ np.add(o["lo"], o["hi"]) / 2 + np.array(o["pose"])[:3, 3]
+            for r, o in zip(old_rot, old, strict=True)
+        ]
+    )
+    old_half = np.array([np.subtract(o["hi"], o["lo"]) / 2 for o in old])
+    new_rot, new_centre, new_half = stacked(new)
+    new_pts = inside(new_rot, new_centre, new_half, 2000)
+    assert box_sdf(new_pts, Boxes(old_rot, old_centre, old_half)).max() <= 1e-12
+    old_pts = inside(old_rot, old_centre, old_half, 5000)
+    assert 0.004 < box_sdf(old_pts, Boxes(new_rot, new_centre, new_half)).max() < 0.0056
 
 
 def canonical_urdf(text: str) -> list:
@@ -164,33 +224,22 @@ def canonical_urdf(text: str) -> list:
 
 @pytest.mark.parametrize("key", list(PINS["urdf_text"]))
 def test_the_urdf_is_the_pinned_one(key: str) -> None:
+    """build_urdf now writes link_boxes: the same links, joints and numbers; only a
+    fingertip's visual and collision elements swapped places."""
     gname, links = key.split("/")
     got = build_urdf(GEOMETRIES[gname], links == "True")
     assert canonical_urdf(got) == canonical_urdf(PINS["urdf_text"][key])
 
 
-def test_the_copies_give_the_pinned_numbers() -> None:
-    for p in PINS["hand_boxes"]:
-        pre, prox, dist = p["config"]
-        b = hand_boxes(GEOMETRIES[p["geometry"]], pre, prox, dist)
-        np.testing.assert_allclose(b.rot, p["rot"], rtol=0, atol=EXACT)
-        np.testing.assert_allclose(b.centre, p["centre"], rtol=0, atol=EXACT)
-        np.testing.assert_allclose(b.half, p["half"], rtol=0, atol=EXACT)
-    for p in PINS["hand_points"]:
-        pre, prox, dist = p["config"]
-        np.testing.assert_allclose(hand_points(pre, prox, dist), p["points"], rtol=0, atol=EXACT)
-    for p in PINS["contact_sites"]:
-        pre, prox, dist = p["config"]
-        got = contact_sites(pre, np.array(prox), np.array(dist))
-        np.testing.assert_allclose(got, p["sites"], rtol=0, atol=EXACT)
-    for p in PINS["reflex_boxes"]:
-        got = reflex_boxes(p["preshape"])
-        assert [n for n, *_ in got] == [b["name"] for b in p["boxes"]]
-        for (_, t, lo, hi), want in zip(got, p["boxes"], strict=True):
-            np.testing.assert_allclose(t, want["pose"], rtol=0, atol=EXACT)
-            np.testing.assert_allclose(lo, want["lo"], rtol=0, atol=EXACT)
-            np.testing.assert_allclose(hi, want["hi"], rtol=0, atol=EXACT)
-    for key, digest in PINS["urdf_sha256"].items():
-        gname, links = key.split("/")
-        text = build_urdf(GEOMETRIES[gname], links == "True")
-        assert hashlib.sha256(text.encode()).hexdigest() == digest, key
+def test_box_helpers() -> None:
+    b = Box.from_bounds("b", "base", (0.0, -1.0, 2.0), np.array([2.0, 1.0, 3.0]))
+    np.testing.assert_array_equal(b.position, [1.0, 0.0, 2.5])
+    np.testing.assert_array_equal(b.size, [2.0, 2.0, 1.0])
+    np.testing.assert_array_equal(b.corners()[0], [0.0, -1.0, 2.0])
+    np.testing.assert_array_equal(b.corners()[-1], [2.0, 1.0, 3.0])
+    t = np.eye(4)
+    t[:3, :3], t[:3, 3] = rot_y(0.3), (0.1, 0.2, 0.3)
+    m = b.moved(t)
+    np.testing.assert_allclose(m.corners(), b.corners() @ t[:3, :3].T + t[:3, 3], atol=1e-15)
+    np.testing.assert_allclose(m.pose, t @ b.pose, atol=1e-15)
+    assert (m.name, m.link) == ("b", "base")
