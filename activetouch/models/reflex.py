@@ -359,7 +359,11 @@ class Box:
 
     @classmethod
     def from_bounds(
-        cls, name: str, link: str, lo: np.ndarray | tuple[float, ...], hi: np.ndarray
+        cls,
+        name: str,
+        link: str,
+        lo: np.ndarray | Sequence[float],
+        hi: np.ndarray | Sequence[float],
     ) -> Box:
         """The axis-aligned box between corners `lo` and `hi`."""
         lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
@@ -391,8 +395,8 @@ def link_boxes(geom: ReflexGeometry) -> list[Box]:
     these, so they are what PyBullet collides."""
     g = geom
     out = [
-        Box.from_bounds("housing", BASE_LINK, g.housing_lo, np.array(g.housing_hi)),
-        Box.from_bounds("pad", PAD_LINK, g.pad_lo, np.array(g.pad_hi)),
+        Box.from_bounds("housing", BASE_LINK, g.housing_lo, g.housing_hi),
+        Box.from_bounds("pad", PAD_LINK, g.pad_lo, g.pad_hi),
     ]
     # The swivel box sits halfway between the swivel joint and the proximal joint.
     half_sw = np.array(g.swivel_size) / 2
