@@ -46,7 +46,7 @@ from scipy.spatial.transform import Rotation
 from activetouch.calibration.mount import compose, inverse
 from activetouch.calibration.store import CalibrationRecord
 from activetouch.calibration.tactile import CalibrationRefusedError
-from activetouch.interfaces import N_FINGERS, Hand, Pose
+from activetouch.interfaces import Hand, Pose
 from activetouch.planning.motion.base import Placement
 
 if TYPE_CHECKING:
@@ -105,54 +105,22 @@ class Boxes:
         return len(self.centre)
 
 
-def _box(
-    t: np.ndarray, lo: np.ndarray, hi: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    c = (np.asarray(lo) + np.asarray(hi)) / 2
-    return t[:3, :3], t[:3, :3] @ c + t[:3, 3], (np.asarray(hi) - np.asarray(lo)) / 2
-
-
 def hand_boxes(
     geom: ReflexGeometry | None = None,
     preshape: float = 0.0,
     proximal: Sequence[float] | np.ndarray | None = None,
     distal: Sequence[float] | np.ndarray | None = None,
 ) -> Boxes:
-    """The hand's collision boxes (as in the twin's URDF: housing, pad, swivels, proximal,
-    distal and fingertip boxes) in the hand frame at these joint angles (open by default)."""
-    from activetouch.models.reflex import (
-        ReflexGeometry,
-        finger_link_transforms,
-        rot_y,
-        rot_z,
-        transform,
-    )
+    """The hand's collision boxes (the twin URDF's, `models.reflex.collision_boxes`) in the
+    hand frame at these joint angles (open by default), stacked for the distance kernels."""
+    from activetouch.models.reflex import collision_boxes
 
-    g = geom or ReflexGeometry()
-    prox = np.zeros(N_FINGERS) if proximal is None else np.asarray(proximal, dtype=np.float64)
-    dist = np.zeros(N_FINGERS) if distal is None else np.asarray(distal, dtype=np.float64)
-    eye = np.eye(4)
-    boxes = [
-        _box(eye, np.array(g.housing_lo), np.array(g.housing_hi)),
-        _box(eye, np.array(g.pad_lo), np.array(g.pad_hi)),
-    ]
-    half_sw = np.array(g.swivel_size) / 2
-    c_sw = np.array([g.proximal_on_swivel[0] * 0.5, 0.0, g.proximal_on_swivel[2] * 0.5])
-    prox_lo, prox_hi = g.proximal_box
-    dist_lo, dist_hi = g.distal_box
-    tip_centre, tip_size = g.fingertip_box
-    t_tip = transform(rot_y(g.tip_sensor_tilt), tip_centre)
-    for f in range(N_FINGERS):
-        if f < 2:
-            angle = -preshape if f == 0 else preshape
-            t_sw = transform(rot_z(angle), g.swivel_origins[f])
-            boxes.append(_box(t_sw, c_sw - half_sw, c_sw + half_sw))
-        t_prox, t_dist = finger_link_transforms(g, f, preshape, float(prox[f]), float(dist[f]))
-        boxes.append(_box(t_prox, prox_lo, prox_hi))
-        boxes.append(_box(t_dist, dist_lo, dist_hi))
-        boxes.append(_box(t_dist @ t_tip, -tip_size / 2, tip_size / 2))
-    rot, centre, half = (np.stack(v) for v in zip(*boxes, strict=True))
-    return Boxes(rot, centre, half)
+    boxes = collision_boxes(geom, preshape, proximal, distal)
+    return Boxes(
+        np.stack([b.rotation for b in boxes]),
+        np.stack([b.position for b in boxes]),
+        np.stack([b.half for b in boxes]),
+    )
 
 
 def box_sdf(points: np.ndarray, boxes: Boxes) -> np.ndarray:

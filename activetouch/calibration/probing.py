@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.errors import UnreachableError
-from activetouch.interfaces import N_FINGERS, Arm, Hand, Pose
+from activetouch.interfaces import Arm, Hand, Pose
 
 
 class Flange(Protocol):
@@ -68,23 +68,11 @@ def onset_height(z: np.ndarray, pressure: np.ndarray, threshold: float) -> float
 def hand_points(preshape: float = 0.0, proximal=None, distal=None) -> np.ndarray:
     """(n, 3) corners of every finger link's collision boxes (proximal, distal, fingertip) in
     the hand frame at these joint angles (open by default): the hand's known geometry."""
-    from activetouch.models.reflex import ReflexGeometry, finger_link_transforms, rot_y
+    from activetouch.models.reflex import DISTAL_LINKS, PROXIMAL_LINKS, collision_boxes
 
-    g = ReflexGeometry()
-    prox = np.zeros(N_FINGERS) if proximal is None else np.asarray(proximal)
-    dist = np.zeros(N_FINGERS) if distal is None else np.asarray(distal)
-    signs = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float)
-    pts = []
-    for f in range(N_FINGERS):
-        t_prox, t_dist = finger_link_transforms(g, f, preshape, float(prox[f]), float(dist[f]))
-        for t, (lo, hi) in ((t_prox, g.proximal_box), (t_dist, g.distal_box)):
-            c = lo + signs * (hi - lo)
-            pts.append(c @ t[:3, :3].T + t[:3, 3])
-        centre, size = g.fingertip_box
-        r = rot_y(g.tip_sensor_tilt)
-        c = centre + ((signs - 0.5) * size) @ r.T
-        pts.append(c @ t_dist[:3, :3].T + t_dist[:3, 3])
-    return np.concatenate(pts)
+    fingers = set(PROXIMAL_LINKS + DISTAL_LINKS)  # not the palm's housing, pad and swivels
+    boxes = collision_boxes(None, preshape, proximal, distal)
+    return np.concatenate([b.corners() for b in boxes if b.link in fingers])
 
 
 @dataclass(frozen=True)

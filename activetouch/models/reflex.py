@@ -18,6 +18,10 @@ Sensor sites are sensor-frame origins (what the authors used as contact XYZ): 5 
 link, 4 on the distal link (the last one, the fingertip, tilted about y), 11 on the palm.
 `sensor_positions` computes their hand-frame XYZ from the joint angles in numpy; the URDF also
 carries them as massless fixed links so the two can be checked against each other.
+
+Collision boxes: `link_boxes` (each in its URDF link's frame) is the one list the URDF, the
+motion planner's collision model and the object calibration's hand all use; `collision_boxes`
+poses them in the hand frame at given joint angles (`link_frames`).
 """
 
 from __future__ import annotations
@@ -27,8 +31,10 @@ import hashlib
 import os
 import stat
 import tempfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Final
 
 import numpy as np
 
@@ -181,6 +187,11 @@ def geometry_with_distal_sites(
     )
 
 
+# One shared instance: the kinematics caches key on the geometry, so callers without their own
+# (the hardware drivers) hash and hit this one.
+DEFAULT_GEOMETRY: Final = ReflexGeometry()
+
+
 # ---------------------------------------------------------------------------------------------
 # Kinematics (pure numpy)
 
@@ -207,15 +218,19 @@ def transform(rotation: np.ndarray, translation: np.ndarray | tuple[float, ...])
     return t
 
 
+def swivel_transform(geom: ReflexGeometry, finger: int, preshape: float) -> np.ndarray:
+    """4x4 hand-frame pose of finger `finger`'s (0 or 1) swivel link frame."""
+    # preshape_1 = +theta about -z, preshape_2 = -theta about -z.
+    swivel_angle = -preshape if finger == 0 else preshape
+    return transform(rot_z(swivel_angle), geom.swivel_origins[finger])
+
+
 def finger_link_transforms(
     geom: ReflexGeometry, finger: int, preshape: float, proximal: float, distal: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """4x4 hand-frame poses of finger `finger`'s proximal and distal link frames."""
     if finger < 2:
-        # preshape_1 = +theta about -z, preshape_2 = -theta about -z.
-        swivel_angle = -preshape if finger == 0 else preshape
-        t_swivel = transform(rot_z(swivel_angle), geom.swivel_origins[finger])
-        t_prox_origin = t_swivel @ transform(
+        t_prox_origin = swivel_transform(geom, finger, preshape) @ transform(
             rot_y(geom.proximal_zero_pitch), geom.proximal_on_swivel
         )
     else:
@@ -316,15 +331,133 @@ def coupled_joints(
 
 
 # ---------------------------------------------------------------------------------------------
-# URDF text
+# Links and collision boxes
 
 # Joint and link names; finger f is URDF finger f + 1.
 PRESHAPE_JOINTS = ("preshape_1", "preshape_2")
 PROXIMAL_JOINTS = ("proximal_1", "proximal_2", "proximal_3")
 DISTAL_JOINTS = ("distal_1", "distal_2", "distal_3")
+BASE_LINK = "base"
+PAD_LINK = "pad"
+SWIVEL_LINKS = ("swivel_1", "swivel_2")
 PROXIMAL_LINKS = ("proximal_1", "proximal_2", "proximal_3")
 DISTAL_LINKS = ("distal_1", "distal_2", "distal_3")
-PAD_LINK = "pad"
+
+
+@dataclass(frozen=True, eq=False)
+class Box:
+    """An oriented box: centre `position` and `rotation` (3x3, its axes as columns) in the
+    frame it is given in (its link's for `link_boxes`, the hand's for `collision_boxes`).
+    `name` is the box's (housing, pad, swivel_f, proximal_f, distal_f, fingertip_f, f the
+    finger's message index), `link` the URDF link that carries it."""
+
+    name: str
+    link: str
+    half: np.ndarray  # (3,) half extents along the box's axes
+    position: np.ndarray
+    rotation: np.ndarray
+
+    @classmethod
+    def from_bounds(
+        cls,
+        name: str,
+        link: str,
+        lo: np.ndarray | Sequence[float],
+        hi: np.ndarray | Sequence[float],
+    ) -> Box:
+        """The axis-aligned box between corners `lo` and `hi`."""
+        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+        return cls(name, link, (hi - lo) / 2, (hi + lo) / 2, np.eye(3))
+
+    @property
+    def size(self) -> np.ndarray:
+        return 2 * self.half
+
+    @property
+    def pose(self) -> np.ndarray:
+        """4x4 pose of the box's centre frame."""
+        return transform(self.rotation, self.position)
+
+    def moved(self, t: np.ndarray) -> Box:
+        """This box in the frame where `t` (4x4) is the pose of the frame it is given in."""
+        r = t[:3, :3]
+        return Box(self.name, self.link, self.half, r @ self.position + t[:3, 3], r @ self.rotation)
+
+    def corners(self) -> np.ndarray:
+        """(8, 3) corners, x slowest: (-, -, -), (-, -, +), (-, +, -), ..."""
+        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
+        return (signs * self.half) @ self.rotation.T + self.position
+
+
+def link_boxes(geom: ReflexGeometry) -> list[Box]:
+    """Every collision box in its link's frame, in URDF link order: housing, pad, then per
+    finger [swivel (fingers 0, 1)], proximal, distal, fingertip. The URDF is written from
+    these, so they are what PyBullet collides."""
+    g = geom
+    out = [
+        Box.from_bounds("housing", BASE_LINK, g.housing_lo, g.housing_hi),
+        Box.from_bounds("pad", PAD_LINK, g.pad_lo, g.pad_hi),
+    ]
+    # The swivel box sits halfway between the swivel joint and the proximal joint.
+    half_sw = np.array(g.swivel_size) / 2
+    c_sw = np.array([g.proximal_on_swivel[0] * 0.5, 0.0, g.proximal_on_swivel[2] * 0.5])
+    prox_lo, prox_hi = g.proximal_box
+    dist_lo, dist_hi = g.distal_box
+    tip_centre, tip_size = g.fingertip_box
+    for f in range(N_FINGERS):
+        if f < 2:
+            out.append(
+                Box.from_bounds(f"swivel_{f}", SWIVEL_LINKS[f], c_sw - half_sw, c_sw + half_sw)
+            )
+        out.append(Box.from_bounds(f"proximal_{f}", PROXIMAL_LINKS[f], prox_lo, prox_hi))
+        out.append(Box.from_bounds(f"distal_{f}", DISTAL_LINKS[f], dist_lo, dist_hi))
+        out.append(
+            Box(
+                f"fingertip_{f}",
+                DISTAL_LINKS[f],
+                tip_size / 2,
+                tip_centre,
+                rot_y(g.tip_sensor_tilt),
+            )
+        )
+    return out
+
+
+def link_frames(
+    geom: ReflexGeometry,
+    preshape: float = 0.0,
+    proximal: np.ndarray | Sequence[float] | None = None,
+    distal: np.ndarray | Sequence[float] | None = None,
+) -> dict[str, np.ndarray]:
+    """4x4 hand-frame pose of every URDF link (sensor sites aside) at these joint angles
+    (fingers open, 0, by default)."""
+    prox = np.zeros(N_FINGERS) if proximal is None else np.asarray(proximal, dtype=np.float64)
+    dist = np.zeros(N_FINGERS) if distal is None else np.asarray(distal, dtype=np.float64)
+    out = {BASE_LINK: np.eye(4), PAD_LINK: np.eye(4)}  # the pad is fixed to the base
+    for f in range(N_FINGERS):
+        if f < 2:
+            out[SWIVEL_LINKS[f]] = swivel_transform(geom, f, preshape)
+        out[PROXIMAL_LINKS[f]], out[DISTAL_LINKS[f]] = finger_link_transforms(
+            geom, f, preshape, float(prox[f]), float(dist[f])
+        )
+    return out
+
+
+def collision_boxes(
+    geom: ReflexGeometry | None = None,
+    preshape: float = 0.0,
+    proximal: np.ndarray | Sequence[float] | None = None,
+    distal: np.ndarray | Sequence[float] | None = None,
+) -> list[Box]:
+    """The URDF's collision boxes (`link_boxes`) in the hand frame at these joint angles
+    (open by default)."""
+    g = geom or DEFAULT_GEOMETRY
+    frames = link_frames(g, preshape, proximal, distal)
+    return [b.moved(frames[b.link]) for b in link_boxes(g)]
+
+
+# ---------------------------------------------------------------------------------------------
+# URDF text
 
 
 def sensor_link_name(sensor: int) -> str:
@@ -353,18 +486,34 @@ def _box_inertia(mass: float, size: np.ndarray | tuple[float, ...]) -> str:
     return f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" iyz="0" izz="{_f(izz)}"/>'
 
 
-def _box_link(name: str, mass: float, lo: np.ndarray, hi: np.ndarray, extra: str = "") -> str:
-    lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-    size, centre = hi - lo, (hi + lo) / 2
+def _rpy(r: np.ndarray) -> tuple[float, float, float]:
+    """URDF roll, pitch, yaw (fixed-axis x, y, z) of a rotation matrix (pitch within +-pi/2)."""
+    return (
+        float(np.arctan2(r[2, 1], r[2, 2])),
+        float(np.arctan2(-r[2, 0], np.hypot(r[0, 0], r[1, 0]))),
+        float(np.arctan2(r[1, 0], r[0, 0])),
+    )
+
+
+def _box_shape(tag: str, box: Box) -> str:
+    # rpy only for a turned box: the axis-aligned ones print as they always have.
+    turned = not np.array_equal(box.rotation, np.eye(3))
+    rpy = f' rpy="{_xyz(_rpy(box.rotation))}"' if turned else ""
+    return (
+        f'    <{tag}><origin xyz="{_xyz(box.position)}"{rpy}/><geometry><box '
+        f'size="{_xyz(box.size)}"/></geometry></{tag}>\n'
+    )
+
+
+def _box_link(name: str, mass: float, boxes: list[Box]) -> str:
+    """A link of boxes, its inertia that of the first (a fingertip adds shape, not mass)."""
+    body = boxes[0]
+    shapes = "".join(_box_shape(tag, b) for b in boxes for tag in ("visual", "collision"))
     return (
         f'  <link name="{name}">\n'
-        f'    <inertial><origin xyz="{_xyz(centre)}"/><mass value="{_f(mass)}"/>'
-        f"{_box_inertia(mass, size)}</inertial>\n"
-        f'    <visual><origin xyz="{_xyz(centre)}"/><geometry><box size="{_xyz(size)}"/>'
-        f"</geometry></visual>\n"
-        f'    <collision><origin xyz="{_xyz(centre)}"/><geometry><box size="{_xyz(size)}"/>'
-        f"</geometry></collision>\n"
-        f"{extra}"
+        f'    <inertial><origin xyz="{_xyz(body.position)}"/><mass value="{_f(mass)}"/>'
+        f"{_box_inertia(mass, body.size)}</inertial>\n"
+        f"{shapes}"
         f"  </link>\n"
     )
 
@@ -407,35 +556,25 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
     links make every PyBullet joint reset ~8x slower, and `sensor_positions` gives the same
     positions (tested against the links)."""
     g = geom or ReflexGeometry()
+    boxes: dict[str, list[Box]] = {}
+    for b in link_boxes(g):
+        boxes.setdefault(b.link, []).append(b)
     parts = ['<?xml version="1.0"?>\n<robot name="reflex">\n']
-    parts.append(_box_link("base", g.base_mass, np.array(g.housing_lo), np.array(g.housing_hi)))
-    parts.append(_box_link(PAD_LINK, g.pad_mass, np.array(g.pad_lo), np.array(g.pad_hi)))
-    parts.append(_joint("pad_joint", "fixed", "base", PAD_LINK, (0.0, 0.0, 0.0)))
+    parts.append(_box_link(BASE_LINK, g.base_mass, boxes[BASE_LINK]))
+    parts.append(_box_link(PAD_LINK, g.pad_mass, boxes[PAD_LINK]))
+    parts.append(_joint("pad_joint", "fixed", BASE_LINK, PAD_LINK, (0.0, 0.0, 0.0)))
 
-    prox_lo, prox_hi = g.proximal_box
-    dist_lo, dist_hi = g.distal_box
     prox_sites, dist_sites = finger_site_offsets(g)
     tilt = g.tip_sensor_tilt
-    tip_centre, tip_size = g.fingertip_box
-    tip_collision = (
-        f'    <collision><origin xyz="{_xyz(tip_centre)}" rpy="0 {_f(tilt)} 0"/>'
-        f'<geometry><box size="{_xyz(tip_size)}"/></geometry></collision>\n'
-        f'    <visual><origin xyz="{_xyz(tip_centre)}" rpy="0 {_f(tilt)} 0"/>'
-        f'<geometry><box size="{_xyz(tip_size)}"/></geometry></visual>\n'
-    )
-
     for f in range(N_FINGERS):
-        n = f + 1
         if f < 2:
-            swivel = f"swivel_{n}"
-            half = np.array(g.swivel_size) / 2
-            centre = np.array([g.proximal_on_swivel[0] * 0.5, 0.0, g.proximal_on_swivel[2] * 0.5])
-            parts.append(_box_link(swivel, g.swivel_mass, centre - half, centre + half))
+            swivel = SWIVEL_LINKS[f]
+            parts.append(_box_link(swivel, g.swivel_mass, boxes[swivel]))
             parts.append(
                 _joint(
                     PRESHAPE_JOINTS[f],
                     "revolute",
-                    "base",
+                    BASE_LINK,
                     swivel,
                     g.swivel_origins[f],
                     axis=(0.0, 0.0, -1.0),
@@ -445,9 +584,9 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
             prox_parent, prox_xyz = swivel, g.proximal_on_swivel
             prox_rpy: tuple[float, ...] = (0.0, g.proximal_zero_pitch, 0.0)
         else:
-            prox_parent, prox_xyz = "base", g.thumb_origin
+            prox_parent, prox_xyz = BASE_LINK, g.thumb_origin
             prox_rpy = (0.0, g.proximal_zero_pitch, g.thumb_yaw)
-        parts.append(_box_link(PROXIMAL_LINKS[f], g.proximal_mass, prox_lo, prox_hi))
+        parts.append(_box_link(PROXIMAL_LINKS[f], g.proximal_mass, boxes[PROXIMAL_LINKS[f]]))
         parts.append(
             _joint(
                 PROXIMAL_JOINTS[f],
@@ -460,9 +599,7 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
                 limits=(0.0, g.proximal_limit),
             )
         )
-        parts.append(
-            _box_link(DISTAL_LINKS[f], g.distal_mass, dist_lo, dist_hi, extra=tip_collision)
-        )
+        parts.append(_box_link(DISTAL_LINKS[f], g.distal_mass, boxes[DISTAL_LINKS[f]]))
         parts.append(
             _joint(
                 DISTAL_JOINTS[f],

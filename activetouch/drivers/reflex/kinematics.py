@@ -1,4 +1,4 @@
-"""Raw servo / encoder / load values to joint angles and back, and contact sites.
+"""Raw servo / encoder / load values to joint angles and back.
 
 Conventions of reflex-ros-pkg's ``reflex_driver_node.cpp`` (protocol facts B.2, B.3):
 - motor (spool) angle = inversion * (raw * scale / gear ratio - zero), scale = 4 * 2π / 4095
@@ -7,6 +7,9 @@ Conventions of reflex-ros-pkg's ``reflex_driver_node.cpp`` (protocol facts B.2, 
   HEAD uses ``encoder_zero - counts * scale`` (an older one the opposite sign): `encoder_sign`;
 - distal ≈ max(0, motor - proximal) (the tendon spooled beyond the proximal joint);
 - load: bits 0-9 magnitude, bit 10 direction, times the motor inversion.
+
+Contact sites from these joint angles are `activetouch.models.reflex.sensor_positions`, the
+kinematics the twin uses, so grasps from the hardware and the twin are in one frame.
 """
 
 from __future__ import annotations
@@ -79,22 +82,3 @@ def proximal_angle(counts: np.ndarray, zero: np.ndarray, sign: float = -1.0) -> 
 def distal_approx(motor: np.ndarray, proximal: np.ndarray) -> np.ndarray:
     """The driver's distal estimate: tendon spooled beyond the proximal joint, never < 0."""
     return np.maximum(0.0, np.asarray(motor) - np.asarray(proximal))
-
-
-def contact_sites(preshape: float, proximal: np.ndarray, distal: np.ndarray) -> np.ndarray:
-    """(38, 3) hand-frame sensor-site XYZ at these angles: the same kinematics the twin uses
-    (`activetouch.models.reflex`, pure numpy, no PyBullet), so grasps from the hardware and
-    the twin are in one frame."""
-    from activetouch.models.reflex import ReflexGeometry, sensor_positions
-
-    return sensor_positions(_geometry(ReflexGeometry), preshape, proximal, distal)
-
-
-_GEOM = None
-
-
-def _geometry(cls):  # one default geometry (its sites cache by identity)
-    global _GEOM
-    if _GEOM is None:
-        _GEOM = cls()
-    return _GEOM

@@ -58,6 +58,7 @@ from activetouch.interfaces import (
     Hand,
     StopLatch,
 )
+from activetouch.models.reflex import DEFAULT_GEOMETRY, sensor_positions
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
@@ -730,7 +731,7 @@ class ReflexSFHand(Hand):
         touched = [f for f in range(N_FINGERS) if step.reasons[f] == "contact"]
         prox, dist = self._joints(r.motor[:N_FINGERS])
         ids = np.array([f * SENSORS_PER_FINGER + cfg.contact_site for f in touched], dtype=int)
-        sites = kinematics.contact_sites(float(r.motor[3]), prox, dist)
+        sites = sensor_positions(DEFAULT_GEOMETRY, float(r.motor[3]), prox, dist)
         return Grasp(
             sensor_ids=ids,
             xyz=sites[ids].reshape(-1, 3),

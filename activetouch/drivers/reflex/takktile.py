@@ -43,6 +43,7 @@ from activetouch.drivers.reflex.common import (
 )
 from activetouch.errors import ActiveTouchError, ConfigError, StoppedError
 from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER, Grasp, Hand
+from activetouch.models.reflex import DEFAULT_GEOMETRY, sensor_positions
 
 if TYPE_CHECKING:
     import socket
@@ -964,7 +965,7 @@ class ReflexTakktileHand(Hand):
         self.last_close_reasons = step.reasons
         r = self._wait_reading(r.seq, cfg.stream_timeout_s)  # read at the final pose
         ids = np.flatnonzero(r.contact & ~self.masked)
-        sites = kinematics.contact_sites(float(r.motor[3]), r.proximal, r.distal)
+        sites = sensor_positions(DEFAULT_GEOMETRY, float(r.motor[3]), r.proximal, r.distal)
         return Grasp(
             sensor_ids=ids,
             xyz=sites[ids],

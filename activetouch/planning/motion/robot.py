@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from activetouch.errors import ConfigError, DataError
 from activetouch.interfaces import JointLimits, Pose
+from activetouch.models.reflex import Box, collision_boxes
 
 ARM_JOINTS = ("s0", "s1", "e0", "e1", "w0", "w1", "w2")
 # Baxter's tucked pose (baxter_tools tuck_arms.py), left arm; the right arm mirrors s0, e0, w0, w2.
@@ -177,30 +178,9 @@ class ArmModel:
         return np.clip(q, self.lower, self.upper)
 
 
-def _box_geometry(pin, coal, name: str, joint: int, frame: int, placement, lo, hi):
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    local = pin.SE3(np.eye(3), (lo + hi) / 2)
-    return pin.GeometryObject(name, int(joint), int(frame), placement * local, coal.Box(*(hi - lo)))
-
-
-def reflex_boxes(preshape: float = 0.0) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
-    """The open ReFlex's collision boxes: (name, 4x4 pose in the hand frame, lo, hi)."""
-    from activetouch.models.reflex import ReflexGeometry, finger_link_transforms
-
-    g = ReflexGeometry()
-    out = [
-        ("reflex_housing", np.eye(4), np.array(g.housing_lo), np.array(g.housing_hi)),
-        ("reflex_pad", np.eye(4), np.array(g.pad_lo), np.array(g.pad_hi)),
-    ]
-    for f in range(3):
-        t_prox, t_dist = finger_link_transforms(g, f, preshape, 0.0, 0.0)
-        lo, hi = g.proximal_box
-        out.append((f"reflex_proximal_{f}", t_prox, lo, hi))
-        lo, hi = g.distal_box
-        hi = hi.copy()
-        hi[0] = g.distal_size[0]  # the fingertip, as a box
-        out.append((f"reflex_distal_{f}", t_dist, lo, hi))
-    return out
+def _box_geometry(pin, coal, name: str, joint: int, frame: int, hand_placement, box: Box):
+    placement = hand_placement * pin.SE3(box.rotation, box.position)
+    return pin.GeometryObject(name, int(joint), int(frame), placement, coal.Box(*box.size))
 
 
 def load_arm(cfg: BaxterMotionConfig | None = None) -> ArmModel:
@@ -245,10 +225,12 @@ def load_arm(cfg: BaxterMotionConfig | None = None) -> ArmModel:
         )
     )
     hand_ids = []
-    for name, t, lo, hi in reflex_boxes(cfg.hand_preshape):
-        placement = hand_placement * pin.SE3(t[:3, :3], t[:3, 3])
+    # The twin URDF's boxes with the fingers open (the hand moves open).
+    for box in collision_boxes(None, cfg.hand_preshape):
         gid = geom.addGeometryObject(
-            _box_geometry(pin, coal, name, link.parentJoint, hand_frame, placement, lo, hi)
+            _box_geometry(
+                pin, coal, f"reflex_{box.name}", link.parentJoint, hand_frame, hand_placement, box
+            )
         )
         hand_ids.append(gid)
 

@@ -18,10 +18,10 @@ from hypothesis import strategies as st
 
 from activetouch.device_types import device_config
 from activetouch.drivers.reflex.common import ServoFaultError, StreamLostError
-from activetouch.drivers.reflex.kinematics import contact_sites
 from activetouch.drivers.reflex.sf import ReflexSFConfig, ReflexSFHand, upstream_load
 from activetouch.emulators.reflex_sf import FixedStops, SFEmulator, SFEmulatorConfig
 from activetouch.errors import ConfigError, StoppedError
+from activetouch.models.reflex import DEFAULT_GEOMETRY, sensor_positions
 
 
 @pytest.fixture
@@ -82,7 +82,7 @@ def test_guarded_close_reports_stalled_fingers(hand, emu):
     g = hand.guarded_close()
     assert hand.last_close_reasons == ("contact", "contact", "limit")
     assert g.sensor_ids.tolist() == [6, 15]  # one per stalled finger, its distal site
-    sites = contact_sites(g.preshape, g.finger_angles, g.finger_angles * 0.25)
+    sites = sensor_positions(DEFAULT_GEOMETRY, g.preshape, g.finger_angles, g.finger_angles * 0.25)
     assert np.allclose(g.xyz, sites[[6, 15]], atol=1e-9)
     assert np.all(g.pressures > 0)
     s = hand.state()

@@ -38,7 +38,8 @@ def test_srdf_disabled_pairs_are_gone_and_hand_is_checked(baxter):
     assert not [p for p in pairs if objs[p[0]].parentJoint == 0 and objs[p[1]].parentJoint == 0]
     assert not any(o.name.startswith("l_gripper") for o in objs)
     hand = set(baxter.hand_geoms)
-    assert len(hand) == 8
+    # The twin URDF's boxes: housing, pad, 2 swivels, 3 x (proximal, distal, fingertip).
+    assert len(hand) == 13
     partners = {o for a, b in pairs for o in (a, b) if a in hand or b in hand} - hand
     assert {"torso_0", "left_upper_elbow_0"} <= {str(objs[i].name) for i in partners}
 
