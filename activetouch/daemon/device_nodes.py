@@ -79,7 +79,7 @@ class DeviceNodes:
         )
 
     def healthy(self) -> bool:
-        return all(n._worker.is_alive() for n in self.nodes)
+        return all(n.workers_alive() for n in self.nodes)
 
     def close(self, join_timeout: float = 1.0) -> None:
         for link in self.links:  # no reconnection while closing

@@ -6,10 +6,11 @@ In the daemon it reaches the hand and the arm *only* through Zenoh (`RemoteHand`
 (devices, progress publication, requesters' tokens) comes in `ServiceLinks`, so tests run it
 in memory on the devices themselves (`local_links`) with queries handed to `submit`.
 
-Threads: Zenoh callbacks only enqueue queries. A control thread answers ``status`` and
-``cancel`` and admits ``recognize`` requests (validation, busy check); a runner thread runs one
-recognition at a time and holds its query until the final reply; an e-stop thread answers
-``estop`` (it must not wait behind anything).
+Threads: the daemon's queryables are a `ServedNode` (activetouch.daemon.serving, the serving
+base of every node): Zenoh callbacks only enqueue queries; its main worker (the control
+thread) answers ``status`` and ``cancel`` and admits ``recognize`` requests (validation, busy
+check); its fast worker answers ``estop`` (it must not wait behind anything); a runner thread
+runs one recognition at a time and holds its query until the final reply.
 
 One recognition at a time: while one runs, a new request is refused with a `BusyError`
 reply, unless ``service.max_queued`` > 0, in which case up to that many wait in a FIFO queue
@@ -32,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import queue
 import secrets
 import threading
 import time
@@ -50,7 +50,7 @@ from activetouch.daemon.interlock import GuardedHand, GuardedWrist, Interlock
 from activetouch.daemon.jobs import EXPIRY_SWEEP_S, Job, Running, TimedPolicy
 from activetouch.daemon.links import ServiceLinks, zenoh_links
 from activetouch.daemon.redaction import redact, set_redactions
-from activetouch.daemon.serving import JSON, direct, query_budget
+from activetouch.daemon.serving import JSON, Op, ServedNode, query_budget
 from activetouch.errors import (
     ActiveTouchError,
     DataError,
@@ -83,9 +83,6 @@ from activetouch.transport.zenoh_session import undeclare_quietly
 log = logging.getLogger("activetouch.daemon")
 
 
-_STOP = object()
-
-
 def _probability(p: float) -> float:
     return min(1.0, max(0.0, float(p)))
 
@@ -98,13 +95,49 @@ def _parse(query: zenoh.Query, request_type: type[Message]) -> Any:
     return decode(data, request_type)
 
 
+def _failure(exc: BaseException) -> Reply:
+    """The error reply, with the data directory's paths redacted."""
+    env = Reply.failure(exc)
+    return msgspec.structs.replace(env, error=redact(env.error) or "")
+
+
 def _reply_error(query: zenoh.Query, exc: BaseException) -> None:
     try:
-        env = Reply.failure(exc)
-        env = msgspec.structs.replace(env, error=redact(env.error) or "")
-        query.reply_err(encode(env), encoding=JSON)
+        query.reply_err(encode(_failure(exc)), encoding=JSON)
     except Exception:
         log.debug("cannot send an error reply", exc_info=True)
+
+
+class DaemonNode(ServedNode):
+    """The daemon's queryables on the serving base: ``status``, ``cancel`` and the admission
+    of ``recognize`` on the main worker, ``estop`` on the fast one; between queries a sweep
+    answers queued recognitions whose caller gave up. Its liveliness token is declared by
+    the service once it has waited for the device nodes."""
+
+    node_name = DAEMON_NODE
+    idle_period = EXPIRY_SWEEP_S
+
+    def __init__(self, service: RecognitionService, session: zenoh.Session | None) -> None:
+        super().__init__(
+            session, service.robot, state_key=service.keys.status, state_hz=0.0, lock=None
+        )
+        self.service = service
+        k = self.keys
+        self._ops = {
+            "recognize": Op(k.recognize, RecognizeRequest, service._admit, owns_query=True),
+            "status": Op(k.status, Empty, lambda _r: service.status()),
+            "cancel": Op(k.cancel, CancelRequest, service._cancel),
+            "estop": Op(k.estop, EStopRequest, lambda r: service.estop(r.reason), fast=True),
+        }
+
+    def _on_idle(self) -> None:
+        self.service._expire_queued()
+
+    def _failure(self, exc: BaseException) -> Reply:
+        return _failure(exc)
+
+    def _on_close(self) -> None:
+        self.service._stop_recognitions()
 
 
 class RecognitionService:
@@ -154,21 +187,18 @@ class RecognitionService:
         self._pending: deque[Job] = deque()
         self._running: Running | None = None
         self._closing = False
-        self._control_q: queue.SimpleQueue = queue.SimpleQueue()
-        self._estop_q: queue.SimpleQueue = queue.SimpleQueue()
-        self._queryables: list[Any] = []
-        self._token: Any = None
+        self._closed = False
+        self._close_reason = ""
         if links is None:
             if session is None:
                 raise ValueError("a RecognitionService needs a Zenoh session or its links")
             links = zenoh_links(session, robot, mode, self.svc)
         self.links = links
         self.hand, self.arm = links.hand, links.arm
-        self._threads = [
-            threading.Thread(target=self._control_loop, name="activetouch-control", daemon=True),
-            threading.Thread(target=self._runner_loop, name="activetouch-runner", daemon=True),
-            threading.Thread(target=self._estop_loop, name="activetouch-estop", daemon=True),
-        ]
+        self._runner = threading.Thread(
+            target=self._runner_loop, name="activetouch-runner", daemon=True
+        )
+        self.node = DaemonNode(self, session)
 
     def _warm_up(self) -> None:
         """Plan once now, so the first request does not wait for numba to load (or compile)
@@ -205,15 +235,10 @@ class RecognitionService:
     def start(self, wait_nodes: float) -> None:
         """Serve; wait up to `wait_nodes` s for the nodes; then declare the daemon's token."""
         try:
-            k = self.keys
-            for t in self._threads:
-                t.start()
+            self._runner.start()
+            self.node.start(declare_token=False)
             if self._session is None:
                 return  # in memory: queries come through `submit`
-            for key in (k.recognize, k.cancel, k.status, k.estop):
-                self._queryables.append(
-                    self._session.declare_queryable(key, direct(self._enqueuer(key)))
-                )
             deadline = time.monotonic() + wait_nodes
             for node in (self.hand, self.arm):
                 wait = getattr(node, "wait_alive", None)
@@ -224,7 +249,7 @@ class RecognitionService:
                 except NodeUnavailableError as e:
                     log.warning("node not there yet", extra={"node": node.node, "error": str(e)})
             # Last: a client that sees the token can use every queryable.
-            self._token = self._session.liveliness().declare_token(k.alive(DAEMON_NODE))
+            self.node.declare_token()
         except Exception:
             self.close()
             raise
@@ -234,40 +259,11 @@ class RecognitionService:
         )
 
     def healthy(self) -> bool:
-        return all(t.is_alive() for t in self._threads)
+        return self._runner.is_alive() and self.node.workers_alive()
 
     def submit(self, key: str, query: Any) -> None:
         """Take a query on one of the daemon's keys (the e-stop on its own thread)."""
-        target = self._estop_q if key == self.keys.estop else self._control_q
-        target.put((key, query, time.monotonic()))
-
-    def _enqueuer(self, key: str) -> Any:
-        def on_query(query: zenoh.Query) -> None:
-            # Zenoh's thread: hand the query over, never block or call Zenoh here.
-            self.submit(key, query)
-
-        return on_query
-
-    # -- control thread: status, cancel, admission of recognize
-    def _control_loop(self) -> None:
-        while True:
-            try:
-                item = self._control_q.get(timeout=EXPIRY_SWEEP_S)
-            except queue.Empty:
-                self._expire_queued()
-                continue
-            if item is _STOP:
-                return
-            key, query, arrived = item
-            try:
-                if key == self.keys.recognize:
-                    self._admit(query, arrived)
-                elif key == self.keys.status:
-                    self._answer(query, key, Empty, lambda _req: self.status())
-                elif key == self.keys.cancel:
-                    self._answer(query, key, CancelRequest, self._cancel)
-            except Exception:
-                log.exception("control thread: handling a query failed", extra={"key": key})
+        self.node.submit(key, query)
 
     def _expire_queued(self) -> None:
         """Answer queued requests whose caller's timeout has passed now, not when they reach
@@ -289,16 +285,6 @@ class RecognitionService:
                         f"queue, longer than its caller's timeout ({job.budget:g} s); not started"
                     ),
                 )
-
-    def _answer(self, query: zenoh.Query, key: str, request_type: type[Message], fn: Any) -> None:
-        with query:
-            try:
-                result = fn(_parse(query, request_type))
-                query.reply(key, encode(Reply.success(result)), encoding=JSON)
-            except Exception as e:
-                if not isinstance(e, ActiveTouchError | ValueError):
-                    log.exception("query failed", extra={"key": key})
-                _reply_error(query, e)
 
     def _check_request(self, req: RecognizeRequest) -> None:
         if self.model is None:
@@ -720,22 +706,18 @@ class RecognitionService:
             total_s=max(0.0, res.total_s),
         )
 
-    # -- e-stop thread
-    def _estop_loop(self) -> None:
-        while True:
-            item = self._estop_q.get()
-            if item is _STOP:
-                return
-            _key, query, _arrived = item
-            with query:
-                try:
-                    req = _parse(query, EStopRequest)
-                    result = self.estop(req.reason)
-                    query.reply(self.keys.estop, encode(Reply.success(result)), encoding=JSON)
-                except Exception as e:
-                    if not isinstance(e, ActiveTouchError | ValueError):
-                        log.exception("estop failed")
-                    _reply_error(query, e)
+    def _stop_recognitions(self) -> None:
+        """At close, once nothing new can arrive: abort the running one, join the runner."""
+        cur = self._abort_all(self._close_reason or "the recognition daemon is shutting down")
+        with self._cv:
+            self._cv.notify_all()
+        if self._runner.is_alive():
+            self._runner.join(self.svc.shutdown_timeout_s)
+            if self._runner.is_alive():
+                log.warning(
+                    "recognition still running at shutdown; leaving it",
+                    extra={"session": cur.job.session_id if cur else None},
+                )
 
     def _abort_all(self, reason: str) -> Running | None:
         """Trip the running recognition's interlock and fail every queued one."""
@@ -788,26 +770,13 @@ class RecognitionService:
     def close(self, reason: str = "the recognition daemon is shutting down") -> None:
         """Stop serving, abort the running recognition, join the threads. Idempotent."""
         with self._cv:
-            if self._closing and not self._queryables and self._token is None:
+            if self._closed:
                 return
-            self._closing = True
+            self._closed = self._closing = True
+            self._close_reason = reason
             self._cv.notify_all()
-        undeclare_quietly(self._token, *self._queryables)
-        self._token = None
-        self._queryables.clear()
-        cur = self._abort_all(reason)
-        runner = self._threads[1]
-        if runner.is_alive():
-            runner.join(self.svc.shutdown_timeout_s)
-            if runner.is_alive():
-                log.warning(
-                    "recognition still running at shutdown; leaving it",
-                    extra={"session": cur.job.session_id if cur else None},
-                )
-        for q, t in ((self._control_q, self._threads[0]), (self._estop_q, self._threads[2])):
-            q.put(_STOP)
-            if t.is_alive() and t is not threading.current_thread():
-                t.join(1.0)
+        # Token and queryables go first; then `_stop_recognitions`; then the node's workers.
+        self.node.close(join_timeout=1.0)
         while self.links.closers:
             close = self.links.closers.pop()
             try:

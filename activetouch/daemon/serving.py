@@ -25,7 +25,6 @@ from activetouch.errors import (
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import (
     DeviceHealth,
-    Empty,
     Message,
     Reply,
     decode,
@@ -72,6 +71,9 @@ class Op:
     request_type: type[Message]
     fn: Callable[[Any], Any]  # request -> reply result (a Message or None)
     fast: bool = False  # served on the priority thread, without the device lock
+    # fn(query, arrived) takes the query itself and replies when it is done (a recognition
+    # admitted now, answered later): the worker neither parses, replies nor drops it.
+    owns_query: bool = False
 
 
 @dataclass
@@ -94,9 +96,12 @@ class ServedNode:
 
     node_name = ""
 
+    # Called by the main worker every `idle_period` seconds (None: never), between commands.
+    idle_period: float | None = None
+
     def __init__(
         self,
-        session: zenoh.Session,
+        session: zenoh.Session | None,
         robot: str,
         *,
         state_key: str,
@@ -145,7 +150,41 @@ class ServedNode:
         """Called on close, before the workers are joined."""
 
     # -- lifecycle
-    def _start(self) -> None:
+    def _on_idle(self) -> None:
+        """The main worker's periodic hook (see `idle_period`)."""
+
+    def _failure(self, exc: BaseException) -> Reply:
+        """The error reply for `exc` (a subclass may redact it)."""
+        return Reply.failure(exc)
+
+    def submit(self, key: str, query: Any) -> None:
+        """Hand in a query on `key` as a Zenoh callback would (in memory, without Zenoh)."""
+        for name, op in self._ops.items():
+            if op.key == key:
+                (self._fast_queue if op.fast else self._queue).put(
+                    Job(name, query, self.clock.monotonic())
+                )
+                return
+        raise KeyError(f"{self.node_name} node serves no {key}")
+
+    def start(self, declare_token: bool = True) -> None:
+        """Serve (the nodes made here start themselves; the daemon's node is started by its
+        service, which declares the token once the device nodes are there)."""
+        self._start(declare_token)
+
+    def declare_token(self) -> None:
+        self._set_token(True)
+
+    def workers_alive(self) -> bool:
+        return self._worker.is_alive() and self._fast_worker.is_alive()
+
+    def _start(self, declare_token: bool = True) -> None:
+        """Serve the ops; the liveliness token last (or later, `declare_token=False`, by
+        `_set_token(True)`). Without a session (in memory) only the workers start."""
+        if self._session is None:
+            self._worker.start()
+            self._fast_worker.start()
+            return
         try:
             if self._period is not None:
                 self._publisher = self._session.declare_publisher(
@@ -168,7 +207,8 @@ class ServedNode:
             close_at_exit(self)  # stop the workers before the interpreter finalises
             # Last: a client that sees the token can use every queryable.
             if link is None:
-                self._set_token(True)
+                if declare_token:
+                    self._set_token(True)
             else:
                 link.add_listener(self._on_health)
                 self._on_health(link.health())
@@ -181,6 +221,8 @@ class ServedNode:
 
     def _set_token(self, alive: bool) -> None:
         with self._token_lock:
+            if self._session is None:
+                return
             if alive and self._token is None and not self._closing.is_set():
                 key = self.keys.alive(self.node_name)
                 self._token = self._session.liveliness().declare_token(key)
@@ -266,7 +308,8 @@ class ServedNode:
     # -- worker
     def _run(self, q: queue.SimpleQueue, publishes: bool) -> None:
         period = self._period if publishes else None
-        next_pub = self.clock.monotonic()
+        idle = self.idle_period if publishes else None
+        next_pub = next_idle = self.clock.monotonic()
         while True:
             timeout = None
             if period is not None and not self._closing.is_set():
@@ -276,6 +319,16 @@ class ServedNode:
                     # Keep the rate without bursts of catch-up samples after a long command.
                     next_pub = max(next_pub + period, now)
                 timeout = max(0.0, next_pub - self.clock.monotonic())
+            if idle is not None:
+                now = self.clock.monotonic()
+                if now >= next_idle:
+                    try:
+                        self._on_idle()
+                    except Exception:
+                        log.exception("%s node: idle hook failed", self.node_name)
+                    next_idle = now + idle
+                left = max(0.0, next_idle - self.clock.monotonic())
+                timeout = left if timeout is None else min(timeout, left)
             try:
                 job = q.get(timeout=timeout)
             except queue.Empty:
@@ -304,8 +357,10 @@ class ServedNode:
         payload = query.payload
         data = payload.to_bytes() if payload is not None else b""
         if not data:
-            if op.request_type is Empty:
-                return Empty()
+            try:  # a request whose fields all have defaults may come without a payload
+                return op.request_type()
+            except TypeError:
+                pass
             raise MessageError(
                 f"{op.key} needs a {op.request_type.__name__} payload (JSON), got none"
             )
@@ -313,6 +368,12 @@ class ServedNode:
 
     def _serve(self, job: Job) -> None:
         op = self._ops[job.op]
+        if op.owns_query and not self._closing.is_set():
+            try:
+                op.fn(job.query, job.arrived)
+            except Exception:  # it replies itself; a bug must not end the worker
+                log.exception("%s node: %s failed", self.node_name, job.op)
+            return
         with job.query as query:  # leaving the block drops the query: Zenoh sends the final reply
             try:
                 if self._closing.is_set():
@@ -345,6 +406,6 @@ class ServedNode:
                 if self.link is not None:
                     self.link.report(e)  # a device that went away: reconnect
                 try:
-                    query.reply_err(encode(Reply.failure(e)), encoding=JSON)
+                    query.reply_err(encode(self._failure(e)), encoding=JSON)
                 except Exception:
                     log.debug("%s node: cannot reply to %s", self.node_name, job.op, exc_info=True)
