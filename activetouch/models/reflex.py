@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER
+from activetouch.storage import atomic_write_text
 
 N_PROXIMAL_SENSORS = 5
 N_DISTAL_SENSORS = 4
@@ -533,8 +534,5 @@ def urdf_file(
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"reflex_{digest}.urdf"
     if not path.exists() or path.read_text() != text:
-        fd, tmp = tempfile.mkstemp(dir=root, suffix=".urdf.tmp")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
+        atomic_write_text(path, text)
     return path
