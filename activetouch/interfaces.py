@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from activetouch.clock import SYSTEM_CLOCK, Clock
 
@@ -67,6 +68,16 @@ class Pose:
     def from_array(cls, a: np.ndarray) -> Pose:
         a = np.asarray(a, dtype=np.float64).reshape(7)
         return cls(a[:3], a[3:])
+
+    def compose(self, other: Pose) -> Pose:
+        """`other` (a pose in this pose's frame) in the frame this pose is in: self * other."""
+        r = Rotation.from_quat(self.quat)
+        return Pose(r.apply(other.xyz) + self.xyz, (r * Rotation.from_quat(other.quat)).as_quat())
+
+    def inverse(self) -> Pose:
+        """The pose of the parent frame in this one: p.compose(p.inverse()) is the identity."""
+        r = Rotation.from_quat(self.quat).inv()
+        return Pose(-r.apply(self.xyz), r.as_quat())
 
 
 @dataclass(frozen=True)

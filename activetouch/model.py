@@ -16,13 +16,10 @@ On disk (no pickle; `TrainedModel.save` writes a temp directory and renames it i
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import hashlib
 import json
 import os
-import shutil
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +41,7 @@ from activetouch.recognition.grasp_likelihood import GraspLikelihood
 from activetouch.recognition.histogram import HistogramSpec
 from activetouch.recognition.training import grasp_triangles, partial_histograms
 from activetouch.recognition.triangles import triangle_params
+from activetouch.storage import replace_dir
 
 MODEL_FORMAT_NAME = "activetouch-model"
 MODEL_FORMAT_VERSION = 1
@@ -137,40 +135,12 @@ class TrainedModel:
         except (TypeError, ValueError) as e:
             raise DataError(f"model metadata is not JSON-serialisable: {e}") from None
 
-        tmp = Path(tempfile.mkdtemp(prefix=f".{dest.name}.tmp-", dir=dest.parent))
-        try:
+        def fill(tmp: Path) -> None:
             for name, data in files.items():
-                with open(tmp / name, "wb") as f:
-                    f.write(data)
-                    f.flush()
-                    os.fsync(f.fileno())
-            _fsync_dir(tmp)
-            old = None
-            if dest.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{dest.name}.old-", dir=dest.parent))
-                os.replace(dest, old / "model")
-            try:
-                os.replace(tmp, dest)
-            except BaseException:
-                if old is not None:  # put the previous model back
-                    os.replace(old / "model", dest)
-                raise
-            _fsync_dir(dest.parent)
-            if old is not None:
-                shutil.rmtree(old, ignore_errors=True)
-        finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+                (tmp / name).write_bytes(data)
+
+        replace_dir(dest, fill)
         return dest
-
-
-def _fsync_dir(path: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
 
 
 def _utc_now() -> str:

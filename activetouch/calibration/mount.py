@@ -72,16 +72,6 @@ class MountFit:
     singular_values: np.ndarray  # (6,) of the touch Jacobian (prior excluded)
 
 
-def compose(a: Pose, b: Pose) -> Pose:
-    ra = Rotation.from_quat(a.quat)
-    return Pose(ra.apply(b.xyz) + a.xyz, (ra * Rotation.from_quat(b.quat)).as_quat())
-
-
-def inverse(a: Pose) -> Pose:
-    r = Rotation.from_quat(a.quat).inv()
-    return Pose(-r.apply(a.xyz), r.as_quat())
-
-
 def perturbed(mount0: Pose, x: np.ndarray) -> Pose:
     """M0 with its rotation turned by Exp(x[:3]) (in the mount frame) and moved by x[3:]."""
     r = Rotation.from_quat(mount0.quat) * Rotation.from_rotvec(x[:3])

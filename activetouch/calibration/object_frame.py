@@ -43,7 +43,6 @@ from numba import njit
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from activetouch.calibration.mount import compose, inverse
 from activetouch.calibration.store import CalibrationRecord
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.interfaces import Hand, Pose
@@ -493,7 +492,7 @@ def probe_object(
     object. Returns the touches and, for each approach that found nothing, why."""
     from activetouch.calibration.probing import guarded_descent
 
-    to_flange = inverse(mount)
+    to_flange = mount.inverse()
     clear = st.max_error_m * np.sqrt(2) + st.start_clearance_m
     search = clear + st.max_error_m * np.sqrt(2) + 0.02
     top = table_z + float(shape.extents[2]) + st.lift_clearance_m
@@ -503,12 +502,12 @@ def probe_object(
     def rise(hand_pose: Pose) -> None:
         """Straight up (hand frame kept) until the hand's lowest point clears the object."""
         z = lift_height(boxes, Rotation.from_quat(hand_pose.quat), top)
-        flange.move_to(compose(lifted(hand_pose, z), to_flange))
+        flange.move_to(lifted(hand_pose, z).compose(to_flange))
 
     for d in approach_directions(st):
         start_hand = start_pose(shape, boxes, nominal, d, table_z, clear, st, geometry)
-        start = compose(start_hand, to_flange)
-        rise(compose(flange.pose(), mount))
+        start = start_hand.compose(to_flange)
+        rise(flange.pose().compose(mount))
         rise(start_hand)
         try:
             res = guarded_descent(
@@ -527,8 +526,8 @@ def probe_object(
             missed.append(f"approach along {np.round(d[:2], 3).tolist()}: {e}")
             flange.move_to(start)
             continue
-        touches.append(ObjectTouch(compose(res.flange, mount), d.copy(), res.sensor))
-    rise(compose(flange.pose(), mount))
+        touches.append(ObjectTouch(res.flange.compose(mount), d.copy(), res.sensor))
+    rise(flange.pose().compose(mount))
     return touches, missed
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from activetouch.calibration.mount import compose, inverse
 from activetouch.interfaces import Arm, ArmWrapper, JointState, JointTrajectory, Pose
 
 
@@ -16,13 +15,13 @@ class MountedArm(ArmWrapper):
     def __init__(self, inner: Arm, true_mount: Pose) -> None:
         super().__init__(inner)
         self.true_mount = true_mount
-        self._inv = inverse(true_mount)
+        self._inv = true_mount.inverse()
 
     def joint_state(self) -> JointState:
         from activetouch.planning.motion.floating import pose_to_wrist_joints, wrist_joints_to_pose
 
         js = self.inner.joint_state()
-        flange = compose(wrist_joints_to_pose(js.position), self._inv)
+        flange = wrist_joints_to_pose(js.position).compose(self._inv)
         return JointState(js.names, pose_to_wrist_joints(flange), js.velocity, js.stamp)
 
     def execute(self, trajectory: JointTrajectory) -> None:
@@ -35,6 +34,6 @@ class MountedArm(ArmWrapper):
 
         q = wrist_trajectory_positions(trajectory)
         hand_q = np.stack(
-            [pose_to_wrist_joints(compose(wrist_joints_to_pose(row), self.true_mount)) for row in q]
+            [pose_to_wrist_joints(wrist_joints_to_pose(row).compose(self.true_mount)) for row in q]
         )
         self.inner.execute(JointTrajectory(WRIST_JOINTS, trajectory.times, hand_q))

@@ -4,23 +4,21 @@ Layout: ``<data>/calibration/<device>/<kind>.json`` where `kind` is one of `KIND
 `device` the hand's serial or configured name (for the mount: the arm's and the hand's names;
 for the object: the workcell's). A file holds one `CalibrationRecord`: the schema version,
 what was measured (``values``), when and how (``measured_at``, ``method``) and how well
-(``quality``). Files are written atomically (temporary file in the same directory, fsync,
-``os.replace``) and never with pickle; reading checks the schema and the kind.
+(``quality``). Files are written atomically (`activetouch.storage`: temporary file in the same
+directory, fsync, ``os.replace``) and never with pickle; reading checks the schema and the kind.
 """
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import json
-import os
 import re
-import tempfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from activetouch.errors import DataError
+from activetouch.storage import atomic_write_text
 
 SCHEMA = "activetouch.calibration"
 SCHEMA_VERSION = 1
@@ -109,33 +107,10 @@ def record_path(root: Path, kind: str, device: str) -> Path:
     return calibration_dir(root) / device / f"{kind}.json"
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write `text` to `path` so a reader sees the old file or the new one, never half."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-    try:  # make the rename durable too
-        dfd = os.open(path.parent, os.O_RDONLY)
-        try:
-            os.fsync(dfd)
-        finally:
-            os.close(dfd)
-    except OSError:
-        pass
-
-
 def save(root: Path, record: CalibrationRecord) -> Path:
     path = record_path(root, record.kind, record.device)
-    write_atomic(path, record.to_json())
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(path, record.to_json())
     return path
 
 

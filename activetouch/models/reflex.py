@@ -39,6 +39,7 @@ from typing import Final
 import numpy as np
 
 from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER
+from activetouch.storage import atomic_write_text
 
 N_PROXIMAL_SENSORS = 5
 N_DISTAL_SENSORS = 4
@@ -670,8 +671,5 @@ def urdf_file(
     root.mkdir(parents=True, exist_ok=True)
     path = root / f"reflex_{digest}.urdf"
     if not path.exists() or path.read_text() != text:
-        fd, tmp = tempfile.mkstemp(dir=root, suffix=".urdf.tmp")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
+        atomic_write_text(path, text)
     return path

@@ -20,7 +20,6 @@ with CoACD (or PyBullet's V-HACD).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import hashlib
 import json
 import math
@@ -39,6 +38,7 @@ import numpy as np
 from activetouch.errors import ActiveTouchError, DataError
 from activetouch.objects.paper import BUILDERS, COLOURS
 from activetouch.objects.shapes import Shape, mesh_manifold
+from activetouch.storage import locked, replace_dir
 
 PAPER_SIM_OBJECTS: tuple[str, ...] = (
     "cup",
@@ -214,12 +214,6 @@ def _write_object_dir(d: Path, built: _Built, meta: dict) -> None:
         "n_triangles": len(built.faces),
     }
     (d / "object.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
-
-
-def _fsync_dir(d: Path) -> None:
-    for p in sorted(d.iterdir()):
-        with open(p, "rb") as f:
-            os.fsync(f.fileno())
 
 
 # --------------------------------------------------------------------------------------------
@@ -600,33 +594,12 @@ class ObjectLibrary:
     @contextlib.contextmanager
     def _lock(self) -> Iterator[None]:
         self.root.mkdir(parents=True, exist_ok=True)
-        with open(self.root / ".lock", "a") as f:
-            fcntl.flock(f.fileno(), fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+        with locked(self.root / ".lock"):
+            yield
 
     def _install(self, name: str, fill: Callable[[Path], None]) -> None:
         """Build an object directory in a temporary place, then swap it in by renames."""
-        tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{name}-", dir=self.root))
-        old: Path | None = None
-        try:
-            fill(tmp)
-            _fsync_dir(tmp)
-            final = self.root / name
-            if final.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".old-{name}-", dir=self.root))
-                os.rename(final, old / name)
-            os.rename(tmp, final)
-        except BaseException:
-            if old is not None and not (self.root / name).exists():
-                os.rename(old / name, self.root / name)
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-        finally:
-            if old is not None:
-                shutil.rmtree(old, ignore_errors=True)
+        replace_dir(self.root / name, fill)
 
 
 def _build_builtin(name: str, d: Path) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.stats import binomtest
+from scipy.stats import binomtest, bootstrap
 
 from activetouch.config import SIM_ERROR_SETTINGS, Config, SimConfig
 from activetouch.errors import ConfigError
@@ -275,18 +275,28 @@ def sign_test_p(wins: int, losses: int) -> float:
 def bootstrap_ci(
     diffs: np.ndarray, rng: np.random.Generator, n_boot: int = 10_000, chunk: int = 500
 ) -> tuple[float, float]:
-    """95 % percentile-bootstrap interval of the mean of `diffs` (resampled in chunks, so
-    memory stays small for large evaluations)."""
-    if diffs.size == 0:
+    """95 % percentile-bootstrap interval of the mean of `diffs` (scipy's, `chunk` resamples
+    at a time so memory stays small for large evaluations); reproducible for a seeded `rng`.
+
+    Percentile, not BCa: differences in moves are small integers, often all equal, where BCa
+    is undefined (scipy warns and gives NaN)."""
+    d = np.asarray(diffs, dtype=float)
+    if d.size == 0:
         return float("nan"), float("nan")
-    means = np.concatenate(
-        [
-            diffs[rng.integers(0, diffs.size, size=(min(chunk, n_boot - i), diffs.size))].mean(1)
-            for i in range(0, n_boot, chunk)
-        ]
+    if np.all(d == d.flat[0]):
+        # Every resample has this mean (scipy also refuses a single observation).
+        return float(d.flat[0]), float(d.flat[0])
+    res = bootstrap(
+        (d.ravel(),),
+        np.mean,
+        n_resamples=n_boot,
+        batch=chunk,
+        vectorized=True,
+        method="percentile",
+        confidence_level=0.95,
+        rng=rng,
     )
-    lo, hi = np.percentile(means, [2.5, 97.5])
-    return float(lo), float(hi)
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def paired_stats(diffs: np.ndarray, rng: np.random.Generator) -> dict[str, Any]:

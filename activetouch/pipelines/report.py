@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -16,21 +14,13 @@ import numpy as np
 
 from activetouch.pipelines.evaluation import public_runs
 from activetouch.session.loop import display_label
+from activetouch.storage import atomic_write_text
 
 POLICY_STYLE = {
     "tree": ("tab:blue", "-"),
     "greedy": ("tab:orange", "--"),
     "random": ("tab:gray", ":"),
 }
-
-
-def _atomic_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 def _fmt(v: Any) -> str:
@@ -183,7 +173,7 @@ def write_report(
     extra_md: str = "",
 ) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
-    _atomic_text(
+    atomic_write_text(
         out_dir / "results.json",
         json.dumps({"command": command, "runs": public_runs(runs), "summary": summary}, indent=1)
         + "\n",
@@ -307,5 +297,5 @@ def write_report(
     )
     if extra_md:
         lines.extend([extra_md, ""])
-    _atomic_text(out_dir / "report.md", "\n".join(lines))
+    atomic_write_text(out_dir / "report.md", "\n".join(lines))
     return out_dir / "report.md"

@@ -22,6 +22,7 @@ from activetouch.pipelines.collect import CollectStats, collect_object, pending_
 from activetouch.pipelines.executors import check_executor, exit_with_parent, ray_map
 from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset, GraspRecord
+from activetouch.storage import locked
 
 log = logging.getLogger(__name__)
 
@@ -316,30 +317,18 @@ def run_lock(dataset_path: Path) -> Iterator[None]:
     """One collection per dataset at a time: a second `train` on the same dataset waits for
     the first (saying so), rather than writing beside it. The lock is the kernel's (flock),
     so it goes with the process that held it, however it ended."""
-    import fcntl
-
     path = Path(dataset_path) / ".collect.lock"
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            f.seek(0)
-            holder = f.read().strip() or "?"
-            log.warning(
-                "another collection (pid %s) is writing to %s; waiting for it to finish",
-                holder,
-                dataset_path,
-            )
-            fcntl.flock(f, fcntl.LOCK_EX)
-        f.seek(0)
-        f.truncate()
-        f.write(str(os.getpid()))
-        f.flush()
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+
+    def waiting(holder: str) -> None:
+        log.warning(
+            "another collection (pid %s) is writing to %s; waiting for it to finish",
+            holder.strip() or "?",
+            dataset_path,
+        )
+
+    with locked(path, on_wait=waiting, note=str(os.getpid())):
+        yield
 
 
 class _CallbackQueue:

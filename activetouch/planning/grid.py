@@ -15,6 +15,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from activetouch.config import GridConfig
+from activetouch.poses import look_at_axes
 
 
 @dataclass(frozen=True)
@@ -32,14 +33,7 @@ def look_at_quaternion(direction: np.ndarray, roll: float) -> np.ndarray:
 
     Zero roll puts the frame's x axis in the vertical plane containing +z (pointing up where
     possible), so roll variants are comparable across the grid."""
-    z = np.asarray(direction, dtype=np.float64)
-    z = z / np.linalg.norm(z)
-    up = np.array([0.0, 0.0, 1.0])
-    x = up - z * (up @ z)
-    if np.linalg.norm(x) < 1e-6:  # looking straight up or down: any horizontal x will do
-        x = np.array([1.0, 0.0, 0.0]) - z * z[0]
-    x = x / np.linalg.norm(x)
-    y = np.cross(z, x)
+    x, y, z = look_at_axes(np.asarray(direction, dtype=np.float64).reshape(3))
     base = Rotation.from_matrix(np.column_stack([x, y, z]))
     return (base * Rotation.from_rotvec([0.0, 0.0, roll])).as_quat()
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from activetouch.errors import ConfigError, DataError
+from activetouch.poses import quat_conj, quat_mul, quat_rotate
 
 GRANULARITIES = ("triangle", "grasp")
 ACTION_FRAMES = ("relative", "absolute")
@@ -290,35 +291,14 @@ def canonical_quat(q: np.ndarray) -> np.ndarray:
     return np.where(lead < 0, -q, q)
 
 
-def _qmul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    x1, y1, z1, w1 = np.moveaxis(p, -1, 0)
-    x2, y2, z2, w2 = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        ],
-        axis=-1,
-    )
-
-
-def _qrotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors v (..., 3) by unit quaternions q (..., 4)."""
-    u, w = q[..., :3], q[..., 3:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
-
-
 def relative_pose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Pose of b in a's frame, (..., 7) x y z qx qy qz qw; broadcasts; quaternion canonical."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     qa = a[..., 3:] / np.linalg.norm(a[..., 3:], axis=-1, keepdims=True)
-    qa_inv = qa * np.array([-1.0, -1.0, -1.0, 1.0])
-    t = _qrotate(qa_inv, b[..., :3] - a[..., :3])
-    q = canonical_quat(_qmul(qa_inv, b[..., 3:]))
+    qa_inv = quat_conj(qa)
+    t = quat_rotate(qa_inv, b[..., :3] - a[..., :3])
+    q = canonical_quat(quat_mul(qa_inv, b[..., 3:]))
     return np.concatenate([t, q], axis=-1)
 
 

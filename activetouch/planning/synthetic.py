@@ -35,6 +35,7 @@ from activetouch.planning.observation_model import (
     ObservationModel,
     edge_index_dtype,
 )
+from activetouch.poses import look_at_axes, quat_conj, quat_mul, quat_rotate
 from activetouch.recognition.kernels import KIND_LINEAR_OVR, ClassifierKernel
 
 TRANSLATION_CELL_M = 0.06
@@ -64,13 +65,7 @@ class SyntheticProblem:
 
 def _look_at_quaternions(direction: np.ndarray, roll: np.ndarray) -> np.ndarray:
     """(N, 4) x y z w of frames whose +z is `direction` (N, 3), rolled about it by `roll`."""
-    z = direction / np.linalg.norm(direction, axis=1, keepdims=True)
-    up = np.array([0.0, 0.0, 1.0])
-    x = up[None, :] - z * (z @ up)[:, None]
-    small = np.linalg.norm(x, axis=1) < 1e-6
-    x[small] = np.array([1.0, 0.0, 0.0]) - z[small] * z[small, :1]
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    y = np.cross(z, x)
+    x, y, z = look_at_axes(direction)
     cr, sr = np.cos(roll)[:, None], np.sin(roll)[:, None]
     x, y = cr * x + sr * y, -sr * x + cr * y
     R = np.stack([x, y, z], axis=2)  # columns are the frame axes
@@ -98,29 +93,6 @@ def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(R).as_quat()
 
 
-def _quat_conj_mul(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """conj(q1) * q2 for broadcastable (..., 4) x y z w quaternions: q2 relative to q1."""
-    x1, y1, z1, w1 = -q1[..., 0], -q1[..., 1], -q1[..., 2], q1[..., 3]
-    x2, y2, z2, w2 = q2[..., 0], q2[..., 1], q2[..., 2], q2[..., 3]
-    return np.stack(
-        [
-            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        ],
-        axis=-1,
-    )
-
-
-def _rotate_inverse(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors v (..., 3) by the inverse of unit quaternions q (..., 4)."""
-    u = -q[..., :3]
-    w = q[..., 3:4]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
-
-
 def _rows(keys: np.ndarray, outs: np.ndarray, n_out: int) -> tuple[np.ndarray, ...]:
     """Tally entries (key, outcome), one per observation, into sorted CSR rows with
     cumulative probabilities."""
@@ -146,8 +118,9 @@ _KEY_BASE, _KEY_OFFSET = 256, 128
 
 def _action_keys(xyz: np.ndarray, quat: np.ndarray, src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
     """The action key of each edge src -> tgt: its discretised relative pose's 7 cells."""
-    t_rel = _rotate_inverse(quat[src], xyz[tgt] - xyz[src])
-    q_rel = _quat_conj_mul(quat[src], quat[tgt])
+    inv = quat_conj(quat[src])
+    t_rel = quat_rotate(inv, xyz[tgt] - xyz[src])
+    q_rel = quat_mul(inv, quat[tgt])
     q_rel *= np.where(q_rel[:, 3:4] < 0, -1.0, 1.0)  # q and -q are one rotation
     key = np.zeros(len(src), dtype=np.int64)
     for v, cell in ((t_rel, TRANSLATION_CELL_M), (q_rel, QUATERNION_CELL)):

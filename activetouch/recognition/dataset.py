@@ -21,15 +21,13 @@ from __future__ import annotations
 
 import contextlib
 import datetime as _dt
-import fcntl
 import hashlib
 import io
 import json
 import os
 import re
-import tempfile
 import zipfile
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +36,7 @@ import numpy as np
 
 from activetouch.errors import DataError
 from activetouch.interfaces import Grasp, Pose
+from activetouch.storage import atomic_write_bytes, locked
 
 FORMAT_NAME = "activetouch-dataset"
 FORMAT_VERSION = 1
@@ -107,36 +106,6 @@ def _json_roundtrip(value: Any, what: str) -> Any:
         return json.loads(json.dumps(value))
     except (TypeError, ValueError) as e:
         raise DataError(f"{what} must be JSON-serialisable: {e}") from None
-
-
-def _fsync_dir(path: Path) -> None:
-    # Makes the rename itself durable; not every platform lets a directory be opened.
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    """Write `data` to `path` via a temp file in the same directory, fsync, rename, fsync dir."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-    _fsync_dir(path.parent)
 
 
 def npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
@@ -251,17 +220,6 @@ def _merge(old: dict[str, np.ndarray] | None, new: dict[str, np.ndarray]) -> dic
     return _select(both, keep.astype(np.int64))
 
 
-@contextlib.contextmanager
-def _manifest_lock(path: Path) -> Iterator[None]:
-    """Exclusive advisory lock on the dataset directory, across processes (POSIX flock)."""
-    with open(path / LOCK_FILE, "a+b") as f:
-        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
-
-
 class Dataset:
     """A training dataset directory. Use `Dataset.create_or_open` or `Dataset.open`."""
 
@@ -298,7 +256,7 @@ class Dataset:
         except OSError as e:
             raise DataError(f"cannot create a dataset at {p}: {e}") from None
         # Parallel collectors may create or extend the same dataset at once.
-        with _manifest_lock(p):
+        with locked(p / LOCK_FILE):
             return cls._create_or_open_locked(p, meta)
 
     @classmethod
@@ -375,7 +333,7 @@ class Dataset:
 
     def _write_manifest(self, manifest: dict[str, Any]) -> None:
         data = json.dumps(manifest, indent=2, sort_keys=True).encode() + b"\n"
-        _atomic_write(self.path / MANIFEST, data)
+        atomic_write_bytes(self.path / MANIFEST, data)
         self._manifest = manifest
 
     # --- reading ------------------------------------------------------------------------------
@@ -485,7 +443,7 @@ class Dataset:
             raise DataError("object attrs must be a dict")
         # Collections of different objects run in parallel processes: serialise the
         # read-modify-write of the manifest, and start from what is on disk now.
-        with _manifest_lock(self.path):
+        with locked(self.path / LOCK_FILE):
             self._manifest = self._read_manifest(self.path / MANIFEST)
             self._append_locked(name, records, attrs)
 
@@ -505,7 +463,7 @@ class Dataset:
         odir.mkdir(exist_ok=True)
         self._remove_strays(name)
         rel = f"{OBJECTS_DIR}/{name}.{gen}.npz"
-        _atomic_write(self.path / rel, data)
+        atomic_write_bytes(self.path / rel, data)
 
         new_entry = {
             "file": rel,

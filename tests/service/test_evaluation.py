@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -76,6 +77,35 @@ def test_sign_test_and_bootstrap():
     d = np.random.default_rng(1).normal(1.0, 1.0, 400)
     lo, hi = bootstrap_ci(d, np.random.default_rng(0))
     assert lo < d.mean() < hi and hi - lo == pytest.approx(2 * 1.96 / 20, rel=0.2)
+
+
+def _resampled_ci(d: np.ndarray, rng: np.random.Generator, n_boot: int = 10_000) -> tuple:
+    # The plain percentile bootstrap, by hand: what bootstrap_ci computed before scipy did it.
+    means = np.concatenate(
+        [d[rng.integers(0, d.size, size=(500, d.size))].mean(1) for _ in range(n_boot // 500)]
+    )
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+@pytest.mark.parametrize("n", [2, 7, 400])
+def test_bootstrap_is_the_plain_percentile_bootstrap(n):
+    d = np.random.default_rng(n).integers(-5, 6, n).astype(float)
+    got = bootstrap_ci(d, np.random.default_rng(3))
+    assert got == pytest.approx(_resampled_ci(d, np.random.default_rng(3)), abs=1e-12)
+    assert got == bootstrap_ci(d, np.random.default_rng(3))  # seeded: reproducible
+
+
+@pytest.mark.parametrize(
+    "d, want",
+    [(np.array([3]), 3.0), (np.full(30, 0.1), 0.1), (np.array([-2, -2, -2]), -2.0)],
+)
+def test_bootstrap_degenerate_inputs(d, want):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # scipy's DegenerateDataWarning, numpy's RuntimeWarning
+        assert bootstrap_ci(d, np.random.default_rng(0)) == (want, want)
+        lo, hi = bootstrap_ci(np.array([]), np.random.default_rng(0))
+    assert np.isnan(lo) and np.isnan(hi)
 
 
 def test_eval_command_writes_results_and_report(trained_home, tmp_path, capsys):

@@ -182,7 +182,7 @@ def test_ensure_builtins_is_lazy_and_upgrades(tmp_path: Path) -> None:
     f.write_text(json.dumps(meta))
     assert lib.ensure_builtins(["sphere", "jar_real"]) == ["sphere"]
     assert _tree(lib.root) == before
-    assert not [p for p in lib.root.iterdir() if p.name.startswith((".tmp", ".old"))]
+    assert not [p for p in lib.root.iterdir() if p.name.startswith(".") and p.name != ".lock"]
     with pytest.raises(DataError, match="no builtin"):
         lib.ensure_builtins(["unicorn"])
 

@@ -28,16 +28,18 @@ class Placement:
     def rotation(self) -> Rotation:
         return Rotation.from_euler("z", self.yaw_rad)
 
+    @property
+    def pose(self) -> Pose:
+        """The object frame's pose in the base frame."""
+        return Pose(self.xyz, self.rotation.as_quat())
+
     def to_base(self, pose: Pose) -> Pose:
         """A pose in the object frame, expressed in the base frame."""
-        r = self.rotation
-        return Pose(r.apply(pose.xyz) + self.xyz, (r * Rotation.from_quat(pose.quat)).as_quat())
+        return self.pose.compose(pose)
 
     def to_object(self, pose: Pose) -> Pose:
         """A pose in the base frame, expressed in the object frame."""
-        inv = self.rotation.inv()
-        q = (inv * Rotation.from_quat(pose.quat)).as_quat()
-        return Pose(inv.apply(pose.xyz - self.xyz), q)
+        return self.pose.inverse().compose(pose)
 
     def support_z(self, table_top_z: float) -> float:
         """The table plane's height in the object frame (z is shared: the object only yaws)."""
