@@ -1,57 +1,36 @@
-"""Typed settings from TOML: a dataclass's fields set from a table, each value coerced to the
-field's annotated type, with a one-line ConfigError naming the key of anything wrong."""
+"""Typed settings from TOML: a dataclass's fields set from a table, each value converted to the
+field's annotated type by msgspec, with a one-line ConfigError naming the key of anything
+wrong."""
 
 from __future__ import annotations
 
 import dataclasses
-import types
 import typing
-from typing import Any
+from typing import Any, Literal
+
+import msgspec
 
 from activetouch.errors import ConfigError
 
+# How a wrong value is described, by the field's type.
+_EXPECTED = {int: "an integer", float: "a number", bool: "true/false", str: "a string"}
+
 
 def _coerce(value: Any, tp: Any, key: str) -> Any:
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
-        if value is None:
-            return None
-        return _coerce(value, args[0], key)
-    if tp is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
-            return value.lower() in ("true", "1", "yes")
-        raise ConfigError(f"{key}: expected true/false, got {value!r}")
-    if tp is int:
-        if isinstance(value, bool):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}")
-        try:
-            if isinstance(value, str):
-                return int(value, 0)
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError
-            return int(value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{key}: expected an integer, got {value!r}") from None
-    if tp is float:
-        if isinstance(value, bool):
-            raise ConfigError(f"{key}: expected a number, got {value!r}")
-        try:
-            return float(value)
-        except (TypeError, ValueError):
-            raise ConfigError(f"{key}: expected a number, got {value!r}") from None
-    if tp is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{key}: expected a string, got {value!r}")
-        return value
-    if origin is list:
-        if not isinstance(value, list):
-            raise ConfigError(f"{key}: expected a list, got {value!r}")
-        (inner,) = typing.get_args(tp) or (Any,)
-        return [_coerce(v, inner, f"{key}[{i}]") for i, v in enumerate(value)]
-    return value
+    """`value` as type `tp` (msgspec's lax conversion: "3" is an int, "true" a bool, a word
+    of a `Literal` is checked), else a ConfigError naming `key`."""
+    try:
+        return msgspec.convert(value, tp, strict=False)
+    except msgspec.ValidationError as e:
+        origin = typing.get_origin(tp)
+        if origin is Literal:
+            allowed = ", ".join(map(str, typing.get_args(tp)))
+            raise ConfigError(f"{key}: {value!r} is not one of {allowed}") from None
+        if tp in _EXPECTED:
+            raise ConfigError(f"{key}: expected {_EXPECTED[tp]}, got {value!r}") from None
+        if origin is list:  # msgspec says which element: "Expected `int`, got `str` - at `$[1]`"
+            raise ConfigError(f"{key}: expected a list ({e}), got {value!r}") from None
+        raise ConfigError(f"{key}: {e} (got {value!r})") from None
 
 
 def apply_section(obj: Any, data: dict[str, Any], prefix: str, what: str = "") -> None:

@@ -331,10 +331,9 @@ def test_daemon_over_mutual_tls_obeys_the_roles(pki: Path, tls_daemon: str) -> N
                 RecognizeRequest(policy="random", max_moves=2, object="cup"), timeout=5.0
             ),
         ):
-            t = time.monotonic()
+            # "no ... answers on <key>": refused (a timeout says "did not answer within")
             with pytest.raises(NodeUnavailableError, match="answers on"):
                 call()
-            assert time.monotonic() - t < 4.0  # refused, not a timeout
         # A monitor faking the hand node's death changes nothing (finding 1).
         token = mon._session.liveliness().declare_token(KEYS.alive(HAND_NODE))
         time.sleep(0.3)

@@ -457,9 +457,8 @@ def test_motion_stats_are_served_at_once_and_move_wrist_still_replies_null(
     try:
         assert arm.executing.wait(5.0)
         other = client_session.closing(RemoteArm(session, ROBOT, timeout=1.0))
-        t0 = time.monotonic()
-        assert other.robot_seconds == 12.5  # beside the running execute, not behind it
-        assert time.monotonic() - t0 < 0.5 and arm.executing.is_set()
+        assert other.robot_seconds == 12.5  # beside the running execute, not behind it:
+        assert arm.executing.is_set()  # the execute is still running when the answer came
     finally:
         arm.stop()
         t.join(timeout=10.0)

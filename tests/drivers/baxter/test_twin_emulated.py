@@ -121,11 +121,9 @@ def test_the_twin_follows_the_emulated_joints_only_during_a_motion(emulated) -> 
 def test_a_contact_in_the_twin_ends_the_motion_as_unreachable_and_holds(emulated) -> None:
     arm, twin = emulated
     q0 = arm.joint_state().position
-    t0 = time.monotonic()
+    # The contact's own error, not the settle timeout's: stopped at the contact.
     with pytest.raises(UnreachableError, match="blocked in the twin: contact hand / wall"):
         arm.execute(ramp(q0, 2, 0.6, 1.0))  # left_e0 from 0 to 0.6; the wall at 0.3
-    took = time.monotonic() - t0
-    assert took < 1.5  # stopped at the contact, not after the 2 s settle timeout
     held = arm.emulator.positions("left")
     assert held[2] <= WALL_E0 and held[2] > WALL_E0 - 0.05
     np.testing.assert_allclose(held, twin.q, atol=1e-12)
