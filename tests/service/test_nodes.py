@@ -276,8 +276,12 @@ def test_expired_requests_are_not_executed(node_session: ZenohSession, client_se
     session = client_session.session
     keys = Keys(ROBOT)
     with HandNode(hand, node_session.session, ROBOT, state_hz=0.0, clock=clock) as node:
-        first = session.get(keys.hand_guarded_close, timeout=10.0)
-        assert started.wait(10.0)
+        # The node's queryables reach the client before its token: once the token is seen,
+        # a query is routed (on a loaded machine that can take a moment).
+        rh = client_session.closing(RemoteHand(session, ROBOT, timeout=30.0))
+        rh.wait_alive(30.0)
+        first = session.get(keys.hand_guarded_close, timeout=30.0)
+        assert started.wait(30.0)
         late = session.get(f"{keys.hand_open}?timeout=0.2", payload=encode(Empty()), timeout=10.0)
         while node.queued() == 0:  # the open is in the queue, behind the close
             time.sleep(0.005)

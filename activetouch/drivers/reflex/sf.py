@@ -129,6 +129,10 @@ class ReflexSFConfig(HandConfig):
     moving_speed: int = 377
     control_hz: float = 40.0
     stream_timeout_s: float = 0.2
+    # At connect: how long the servos may take to answer a first read (a bus that drops a
+    # reply, a USB adapter still settling); one register write is tried this many times.
+    connect_timeout_s: float = 1.0
+    write_tries: int = 3
     spool_step_rad: float = 0.05
     spool_limit_rad: float = 3.5
     preshape_limit_rad: float = 1.6
@@ -180,7 +184,13 @@ class ReflexSFConfig(HandConfig):
                 )
         if not 0 < self.load_filter <= 1:
             raise ConfigError("hand.load_filter: a weight in (0, 1]")
-        for name in ("control_hz", "stream_timeout_s", "spool_step_rad", "close_timeout_s"):
+        for name in (
+            "control_hz",
+            "stream_timeout_s",
+            "connect_timeout_s",
+            "spool_step_rad",
+            "close_timeout_s",
+        ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"hand.{name}: must be > 0")
 
@@ -336,10 +346,15 @@ class ReflexSFHand(Hand):
             raise ConfigError(f"hand.port {self.cfg.port}: cannot open at {self.cfg.baud} bps")
         self._port, self._ph = port, dxl.PacketHandler(1.0)
         try:
+            deadline = time.monotonic() + self.cfg.connect_timeout_s
             r = self._read_all()
+            while r is None and time.monotonic() < deadline:
+                time.sleep(0.02)
+                r = self._read_all()
             if r is None:
                 raise StreamLostError(
-                    f"ReFlex SF: servos {self.ids} do not answer on {self.cfg.port}"
+                    f"ReFlex SF: servos {self.ids} do not answer on {self.cfg.port} within "
+                    f"{self.cfg.connect_timeout_s:g} s (power, cabling, hand.baud?)"
                 )
             bad = self._check(r)
             if bad is not None:
@@ -379,8 +394,12 @@ class ReflexSFHand(Hand):
 
     def _write(self, size: int, dxl_id: int, addr: int, value: int) -> None:
         fn = self._ph.write1ByteTxRx if size == 1 else self._ph.write2ByteTxRx
-        with self._bus:
-            res, _err = fn(self._port, dxl_id, addr, int(value))
+        # Register writes are idempotent: a reply lost on the bus is worth another try.
+        for _ in range(max(1, self.cfg.write_tries)):
+            with self._bus:
+                res, _err = fn(self._port, dxl_id, addr, int(value))
+            if res == 0:
+                break
         if res != 0:
             self.warn("write_failed", f"ReFlex SF: write to servo {dxl_id} failed ({res})")
             with self._cond:  # a servo that does not answer is a lost stream
