@@ -9,6 +9,7 @@ the service serves that as the ``sim/place`` node.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -65,8 +66,6 @@ class DeviceContext:
             try:
                 fn()
             except Exception:  # closing must go on
-                import logging
-
                 logging.getLogger(__name__).debug("closing a device resource failed", exc_info=True)
 
 
@@ -94,8 +93,6 @@ class Devices:
             try:
                 dev.disconnect()
             except Exception:
-                import logging
-
                 logging.getLogger(__name__).debug("disconnect failed", exc_info=True)
         self.ctx.close()
 

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from activetouch.clock import SYSTEM_CLOCK, Clock
+from activetouch.errors import StoppedError
 
 N_FINGERS = 3
 SENSORS_PER_FINGER = 9
@@ -208,7 +209,6 @@ class StopLatch:
         return self._event.is_set()
 
     def check(self, what: str) -> None:
-        from activetouch.errors import StoppedError
 
         if self._event.is_set():
             raise StoppedError(f"{what}: the device is stopped (clear the stop first)")

@@ -13,6 +13,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +61,6 @@ def _method(path: Path, what: str) -> dict[str, Any]:
 
 def _measured(path: Path) -> str:
     """When the file was written: the best guess of when it was measured (staleness)."""
-    import datetime as dt
 
     return dt.datetime.fromtimestamp(path.stat().st_mtime, dt.UTC).isoformat(timespec="seconds")
 

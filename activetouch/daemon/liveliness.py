@@ -15,6 +15,7 @@ from activetouch.errors import (
     NodeUnavailableError,
 )
 from activetouch.transport.keys import Keys
+from activetouch.transport.messages import DeviceHealth, decode
 from activetouch.transport.zenoh_session import undeclare_quietly
 
 log = logging.getLogger(__name__)
@@ -135,7 +136,6 @@ class DeviceHealthWatch:
     that published before this daemon existed) and then followed."""
 
     def __init__(self, session: zenoh.Session, robot: str) -> None:
-        from activetouch.transport.messages import DeviceHealth, decode
 
         self.keys = Keys(robot)
         self._decode = lambda b: decode(b, DeviceHealth)

@@ -35,6 +35,7 @@ from activetouch.daemon.recognition_service import RecognitionService
 from activetouch.daemon.supervision import LinkSettings
 from activetouch.daemon.systemd import sd_notify, watchdog_period
 from activetouch.errors import ConfigError
+from activetouch.transport.keys import validate_robot
 from activetouch.transport.zenoh_session import (
     ZenohSession,
     ZenohSettings,
@@ -65,7 +66,6 @@ __all__ = [
 
 def check_service_config(svc: ServiceConfig) -> None:
     """ConfigError naming the ``service.*`` key that is wrong."""
-    from activetouch.transport.keys import validate_robot
 
     try:
         validate_robot(svc.robot)

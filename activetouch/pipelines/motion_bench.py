@@ -24,6 +24,7 @@ import numpy as np
 from activetouch.config import GridConfig
 from activetouch.errors import UnreachableError
 from activetouch.fakes.memory_arm import MemoryArm
+from activetouch.interfaces import Pose
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.planning.grid import shared_grid
 from activetouch.planning.motion.baxter import (
@@ -211,7 +212,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _pose(p: np.ndarray):
-    from activetouch.interfaces import Pose
 
     return Pose.from_array(p)
 

@@ -41,6 +41,7 @@ from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.pipelines.evaluation import parse_seeds
 from activetouch.planning.policies import POLICY_NAMES
+from activetouch.transport.messages import RecognizeRequest
 
 TARGET_OVERHEAD_PCT = 5.0
 
@@ -79,7 +80,6 @@ def main(argv: list[str] | None = None) -> int:
     from activetouch.session.local import load_trained, model_path, recognize_in_twin
     from activetouch.session.loop import RecognitionSession, belief_table_of
     from activetouch.sim.twin import open_twin
-    from activetouch.transport.messages import RecognizeRequest
 
     args = _parser().parse_args(argv)
     console = Console(stderr=True)

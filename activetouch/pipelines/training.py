@@ -9,6 +9,7 @@ import dataclasses
 import logging
 import multiprocessing as mp
 import os
+import queue as queue_mod
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -343,7 +344,6 @@ class _CallbackQueue:
 
 
 def _drain(queue: object, progress: Progress | None) -> None:
-    import queue as queue_mod
 
     while True:
         try:

@@ -25,6 +25,7 @@ take minutes. The construction follows the paper's training stage (Alg. 1) on ma
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,7 +134,6 @@ def _return_freed_memory() -> None:
     """Give freed scratch memory back to the OS. glibc keeps freed arrays of a few MB in its
     heap (the per-class tally parts, about 200 MB at 5000 poses x 100 classes), which would
     count in the process's memory for the rest of its life; elsewhere this does nothing."""
-    import contextlib
     import ctypes
     import ctypes.util
 

@@ -23,6 +23,10 @@ import signal
 import threading
 from collections.abc import Iterator
 
+from activetouch.config import load_config
+from activetouch.errors import ActiveTouchError
+from activetouch.interfaces import Pose
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="activetouch emulate", description=__doc__.split("\n")[0])
@@ -85,9 +89,6 @@ def build_parser() -> argparse.ArgumentParser:
 def twin_backed(a: argparse.Namespace) -> Iterator[object]:
     """`TwinFingers` on a twin world holding `a.object`, the hand at `a.wrist` (or beside it)."""
     from activetouch import paths
-    from activetouch.config import load_config
-    from activetouch.errors import ActiveTouchError
-    from activetouch.interfaces import Pose
     from activetouch.objects.library import ObjectLibrary
     from activetouch.rigs.twin_fingers import TwinFingers
     from activetouch.sim.twin import open_twin

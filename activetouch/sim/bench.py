@@ -34,6 +34,7 @@ from rich.table import Table
 from activetouch.config import GridConfig, SimConfig, load_config
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import N_FINGER_SENSORS, SENSORS_PER_FINGER, Pose
+from activetouch.paths import data_dir, objects_dir
 from activetouch.planning.grid import look_at_quaternion, training_grid
 from activetouch.sim.hand import SimHand
 from activetouch.sim.twin import twin_wrist
@@ -68,8 +69,6 @@ def _library_root(data: str | None) -> Iterator[Path | None]:
     """The object library to use: the data directory's with --data, else a temporary one
     (builtins are generated there, nothing is written to the user's data)."""
     if data is not None:
-        from activetouch.paths import data_dir, objects_dir
-
         yield objects_dir(data_dir(data))
         return
     with tempfile.TemporaryDirectory(prefix="activetouch-bench-") as tmp:
@@ -82,7 +81,6 @@ def _place(world: SimWorld, obj: str, data: str | None) -> str:
         world.place_primitive(kind, size)
         return obj
     from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary
-    from activetouch.paths import data_dir, objects_dir
 
     with _library_root(data) as root:
         if obj in BUILTIN_OBJECTS:

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from activetouch.config import Config
-from activetouch.interfaces import Grasp
+from activetouch.errors import UnreachableError
+from activetouch.interfaces import Grasp, Pose
 
 MIN_CONTACTS = 3  # a triangle needs three contacts
 # Warn above this share of grasps with fewer than 3 contacts (issue 15's target: >= 85 % of
@@ -92,8 +93,6 @@ def advice(shares: Sequence[ContactShare], cfg: Config) -> list[str]:
 def probe_object(spec, cfg: Config, seed: int = 0) -> ContactShare:
     """Grasp `spec` (an ObjectSpec) at every pose of its own grid in a fresh twin, table
     contacts dropped as in training; the share of grasps with fewer than 3 contacts."""
-    from activetouch.errors import UnreachableError
-    from activetouch.interfaces import Pose
     from activetouch.planning.grid import training_grid
     from activetouch.recognition.contacts import drop_support_contacts
     from activetouch.sim.twin import open_twin

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from typing import Annotated, Any, Generic, Literal, TypeVar
 
 import msgspec
@@ -652,7 +653,6 @@ def hand_state_to_msg(state: HandState) -> HandStateMsg:
 def _wall_stamp(state: HandState) -> float:
     """The state's wall-clock stamp: its own (drivers stamp each packet), else its monotonic
     stamp carried over to the wall clock now (both clocks are this process's)."""
-    import time
 
     wall = float(getattr(state, "wall_stamp", 0.0) or 0.0)
     if wall > 0.0 or not state.stamp > 0.0:

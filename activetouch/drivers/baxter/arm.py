@@ -28,6 +28,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -294,8 +295,6 @@ class BaxterArm(Arm):
         if self._external is not None:
             self._session = self._external
         else:
-            from pathlib import Path
-
             from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 
             self._zs = ZenohSession(

@@ -29,6 +29,7 @@ reading while running turns the torque off and fails every further command with 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import threading
 import time
@@ -205,7 +206,6 @@ class ReflexSFConfig(HandConfig):
 def with_stored_zero_points(cfg: ReflexSFConfig, data: object) -> ReflexSFConfig:
     """`cfg` with the stored finger calibration's zero points, when there is one and the
     configuration did not set its own (a setting given explicitly wins, and says so)."""
-    import dataclasses
 
     from activetouch import paths
     from activetouch.calibration import store

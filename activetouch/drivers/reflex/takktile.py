@@ -42,7 +42,7 @@ from activetouch.drivers.reflex.common import (
     parse_address,
 )
 from activetouch.errors import ActiveTouchError, ConfigError, StoppedError
-from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER, Grasp, Hand
+from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER, Grasp, Hand, StopLatch
 from activetouch.models.reflex import DEFAULT_GEOMETRY, sensor_positions
 
 if TYPE_CHECKING:
@@ -345,7 +345,6 @@ class ReflexTakktileHand(Hand):
         fingers: FingerZero | None = None,
         device: str = "",
     ) -> None:
-        from activetouch.interfaces import StopLatch
 
         self.cfg = cfg
         self.device = device or cfg.serial or cfg.type
