@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import abc
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -252,6 +253,13 @@ class Hand(abc.ABC):
     @abc.abstractmethod
     def state(self) -> HandState: ...
 
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        """Ignore these sensors (and only these, replacing an earlier mask) until told
+        otherwise: no finger stops on them and no grasp reports them (a sensor that reads
+        contact with the hand open cannot be touched). False: this hand cannot (then the
+        caller drops their contacts from the grasps itself)."""
+        return False
+
     @abc.abstractmethod
     def stop(self) -> None:
         """Halt the fingers now, from any thread, also during `guarded_close`; motion commands
@@ -348,6 +356,9 @@ class HandWrapper(Hand):
 
     def state(self) -> HandState:
         return self.inner.state()
+
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        return self.inner.mask_sensors(sensor_ids)
 
     def stop(self) -> None:
         self.inner.stop()

@@ -44,6 +44,7 @@ from activetouch.transport.keys import ARM_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
     Empty,
     ExecuteRequest,
+    MaskRequest,
     Message,
     MotionStats,
     MoveWristRequest,
@@ -111,6 +112,7 @@ class HandNode(ServedNode):
                 k.hand_guarded_close, Empty, lambda _r: grasp_to_msg(hand.guarded_close())
             ),
             "state": Op(k.hand_state, Empty, lambda _r: hand_state_to_msg(hand.state())),
+            "mask": Op(k.hand_mask, MaskRequest, lambda r: hand.mask_sensors(r.sensor_ids)),
             # At once, beside a running grasp: the close ends within one control step.
             "stop": Op(k.hand_stop, Empty, lambda _r: hand.stop(), fast=True),
             "clear_stop": Op(k.hand_clear_stop, Empty, lambda _r: hand.clear_stop(), fast=True),

@@ -704,6 +704,7 @@ class RecognitionService:
             grasp_s=max(0.0, res.grasp_s),
             search_s=res.search_s,
             total_s=max(0.0, res.total_s),
+            masked_sensors=list(res.masked_sensors),
         )
 
     def _stop_recognitions(self) -> None:

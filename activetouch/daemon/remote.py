@@ -10,6 +10,7 @@ import logging
 import queue
 import threading
 import time
+from collections.abc import Sequence
 from typing import Any, Generic
 
 import zenoh
@@ -38,6 +39,7 @@ from activetouch.transport.messages import (
     GraspMsg,
     HandStateMsg,
     JointStateMsg,
+    MaskRequest,
     Message,
     MotionStats,
     MoveWristRequest,
@@ -279,6 +281,10 @@ class RemoteHand(RemoteDevice, Hand):
 
     def open(self) -> None:
         self._call("open", self.keys.hand_open, Empty(), None, self.motion_timeout)
+
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        req = MaskRequest(sensor_ids=[int(i) for i in sensor_ids])
+        return bool(self._call("mask", self.keys.hand_mask, req, bool))
 
     def preshape(self, angle: float) -> None:
         self._call(

@@ -92,6 +92,9 @@ class RecognitionResult:
     unreachable: int = 0  # poses the wrist's `reachable()` ruled out before the first grasp
     reachability_s: float = 0.0  # that check (wall seconds; once per placement, not per grasp)
     robot_s: list[float] = field(default_factory=list)  # total_s so far, after each grasp
+    # Sensors that read contact with the hand open before the first grasp (they cannot be
+    # touched: stuck, or a zero that drifted): ignored for the whole recognition.
+    masked_sensors: list[int] = field(default_factory=list)
 
     @property
     def moves(self) -> int:
@@ -107,6 +110,18 @@ class RecognitionResult:
         """Robot time of the recognition: moving, grasping and planning. The reachability check
         is left out: it is paid once per placement, not per recognition."""
         return self.motion_s + self.grasp_s + self.planning_s
+
+
+def without_sensors(grasp: Grasp, sensor_ids: np.ndarray) -> Grasp:
+    """`grasp` without the contacts of `sensor_ids`."""
+    keep = ~np.isin(grasp.sensor_ids, sensor_ids)
+    return Grasp(
+        sensor_ids=grasp.sensor_ids[keep],
+        xyz=grasp.xyz[keep],
+        pressures=grasp.pressures[keep],
+        finger_angles=grasp.finger_angles,
+        preshape=grasp.preshape,
+    )
 
 
 def display_label(label: str) -> str:
@@ -173,6 +188,23 @@ class RecognitionSession:
         self._preshapes = training_preshapes(model)
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
+        self._masked = np.zeros(0, dtype=np.int64)
+
+    def _mask_at_rest(self) -> list[int]:
+        """Open the hand, away from the object, and ignore the sensors that read contact
+        then, for this recognition: by the hand where it can (no finger stops on them), and
+        here in any case (their contacts are dropped from every grasp)."""
+        self._hand(self.hand.open)
+        st = self.hand.state()
+        ids = np.flatnonzero(np.asarray(st.contact, dtype=bool)).astype(np.int64)
+        self._masked = ids
+        self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
+        if ids.size:
+            log.warning(
+                "sensors %s read contact with the hand open: ignored for this recognition",
+                ids.tolist(),
+            )
+        return ids.tolist()
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
         """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
@@ -196,6 +228,8 @@ class RecognitionSession:
         grasp = self._hand(self.hand.guarded_close)
         assert grasp is not None
         self._hand(self.hand.open)
+        if self._masked.size:
+            grasp = without_sensors(grasp, self._masked)
         if self.support_z is not None:
             grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)
         return grasp, pose
@@ -252,6 +286,7 @@ class RecognitionSession:
         res = RecognitionResult(label="", probability=0.0)
         self._grasp_s = 0.0
         clock0 = motion_clock(self.wrist)
+        res.masked_sensors = self._mask_at_rest()
         # Unreachable poses are visited from the start: never a first grasp, never planned.
         visited: list[int] = self._unreachable(res)
         self._travel_costs()

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -150,6 +151,7 @@ class SimHand(Hand):
             raise ValueError("hand_period_s and finger_speed_rad_s must be > 0")
         self.last_close: CloseResult | None = None
         self.stop_latch = StopLatch()
+        self.masked = np.zeros(N_SENSORS, dtype=bool)  # `mask_sensors`: ignored sensors
         self._robot_seconds = 0.0
 
     @property
@@ -167,6 +169,14 @@ class SimHand(Hand):
 
     def disconnect(self) -> None:
         pass
+
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        ids = np.asarray(list(sensor_ids), dtype=np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= N_SENSORS):
+            raise ValueError(f"sensor ids must be 0..{N_SENSORS - 1}, got {ids.tolist()}")
+        self.masked = np.zeros(N_SENSORS, dtype=bool)
+        self.masked[ids] = True
+        return True
 
     def reseed(self, seed: int) -> None:
         """Restart the noise streams from `seed`."""
@@ -233,9 +243,12 @@ class SimHand(Hand):
         substep = np.zeros(N_FINGERS, dtype=np.int64)
         reasons = [""] * N_FINGERS
 
+        live = ~self.masked  # masked sensors stop no finger and are not reported
+
         def links_sensed(p: np.ndarray) -> np.ndarray:
             """(3, 2) bool: each finger's proximal / distal sensors read over threshold."""
-            over = p[:N_FINGER_SENSORS].reshape(N_FINGERS, SENSORS_PER_FINGER) > thr
+            over = (p > thr) & live
+            over = over[:N_FINGER_SENSORS].reshape(N_FINGERS, SENSORS_PER_FINGER)
             return np.column_stack(
                 [over[:, :N_PROXIMAL_SENSORS].any(axis=1), over[:, N_PROXIMAL_SENSORS:].any(axis=1)]
             )
@@ -327,7 +340,7 @@ class SimHand(Hand):
         self._robot_seconds += (max(steps, 0) + 1) * cfg.hand_period_s
         if cfg.sensing == "stall":
             return self._stall_grasp(reasons, pressures)
-        ids = np.flatnonzero(pressures > thr)
+        ids = np.flatnonzero((pressures > thr) & live)
         return Grasp(
             sensor_ids=ids,
             xyz=w.sensor_sites_hand()[ids],

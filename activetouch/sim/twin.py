@@ -97,6 +97,7 @@ class FaultySimHand(SimHand):
         in_contact = np.zeros(N_SENSORS, dtype=bool)
         in_contact[grasp.sensor_ids] = True
         extra = spurious_contacts(in_contact, self.faults, self.faulty, self._fault_rng)
+        extra = extra[~self.masked[extra]]  # a masked sensor reports nothing, spikes neither
         if extra.size == 0:
             return grasp
         ids = np.concatenate([grasp.sensor_ids, extra])

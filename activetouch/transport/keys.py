@@ -9,6 +9,7 @@ widen a subscription or a query to other robots.
 | hand/state | publication (periodic) and queryable | HandStateMsg / Empty -> Reply[HandStateMsg] |
 | hand/open | queryable | Empty -> Reply[None] |
 | hand/preshape | queryable | PreshapeRequest -> Reply[None] |
+| hand/mask | queryable (sensors to ignore) | MaskRequest -> Reply[bool] |
 | hand/guarded_close | queryable | Empty -> Reply[GraspMsg] |
 | hand/stop | queryable (served at once, beside a running grasp) | Empty -> Reply[None] |
 | hand/clear_stop | queryable | Empty -> Reply[None] |
@@ -95,6 +96,10 @@ class Keys:
     @property
     def hand_preshape(self) -> str:
         return self._k("hand", "preshape")
+
+    @property
+    def hand_mask(self) -> str:
+        return self._k("hand", "mask")
 
     @property
     def hand_guarded_close(self) -> str:

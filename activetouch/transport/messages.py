@@ -48,6 +48,7 @@ __all__ = [
     "HandStateMsg",
     "JointStateMsg",
     "JointTrajectoryMsg",
+    "MaskRequest",
     "Message",
     "MessageError",
     "MotionStats",
@@ -231,6 +232,12 @@ class PreshapeRequest(Message, kw_only=True):
     angle: float  # rad, 0 cylinder ... 1.57 pinch (the hand checks its own range)
 
 
+class MaskRequest(Message, kw_only=True):
+    """The sensors the hand ignores from now on (replacing an earlier mask; [] none)."""
+
+    sensor_ids: list[SensorId] = []
+
+
 class MoveWristRequest(Message, kw_only=True):
     pose: PoseMsg  # hand frame in the object frame
 
@@ -337,6 +344,8 @@ class RecognizeResult(Message, kw_only=True):
     grasp_s: NonNegFloat = 0.0  # the hand's open / preshape / guarded close
     search_s: NonNegFloat = 0.0  # the policy's search alone (part of planning_s)
     total_s: NonNegFloat = 0.0  # robot time: motion_s + grasp_s + planning_s
+    # Sensors read in contact with the hand open before the first grasp: ignored throughout.
+    masked_sensors: list[SensorId] = []
 
 
 class MotionStats(Message, kw_only=True):

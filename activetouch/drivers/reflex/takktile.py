@@ -23,7 +23,7 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -381,6 +381,7 @@ class ReflexTakktileHand(Hand):
         if fingers is not None:
             log.info("calibration: fingers from %s", fingers.source)
         self.masked = np.zeros(N_SENSORS, dtype=bool)  # in contact at rest: not reported
+        self._recognition_mask = np.zeros(N_SENSORS, dtype=bool)  # `mask_sensors`
         self.stop_latch = StopLatch()
         self.warn = RateLimitedWarning(log, cfg.warn_interval_s)
         self.counts: dict[str, int] = {
@@ -840,9 +841,22 @@ class ReflexTakktileHand(Hand):
             self.offsets = np.asarray(zero, dtype=np.float64).copy()
             self.thresholds = np.asarray(threshold, dtype=np.float64).copy()
             self.masked = np.zeros(N_SENSORS, dtype=bool)
+            self._recognition_mask = np.zeros(N_SENSORS, dtype=bool)
             self.tactile_calibrated, self.tactile_source = True, source
 
     # -- Hand interface -------------------------------------------------------------------
+
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        """The caller's mask (one recognition's), beside the sensors masked at connect."""
+        ids = np.asarray(list(sensor_ids), dtype=np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= N_SENSORS):
+            raise ValueError(f"sensor ids must be 0..{N_SENSORS - 1}, got {ids.tolist()}")
+        new = np.zeros(N_SENSORS, dtype=bool)
+        new[ids] = True
+        with self._cond:
+            self.masked = (self.masked & ~self._recognition_mask) | new
+            self._recognition_mask = new
+        return True
 
     def stop(self) -> None:
         self.stop_latch.set()
