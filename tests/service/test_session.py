@@ -486,3 +486,17 @@ def test_a_model_without_a_grasp_likelihood_says_to_retrain(trained_home, small_
     )
     with pytest.raises(ConfigError, match="retrain"):
         belief_table_of(older, cfg.recognition)
+
+
+def test_a_stuck_sensor_is_ignored_for_the_whole_recognition(trained_home, small_model):
+    # Issue 24: the sensor that reads contact with the hand open before the first grasp is
+    # masked (no finger stops on it) and none of its contacts reaches the belief.
+    cfg = small_config()
+    cfg.sim.fault_stuck = 1
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    res = recognize_in_twin(small_model, lib, "cup", "tree", 3, cfg, max_moves=4)
+    with open_twin(lib.get("cup"), cfg.sim, seed=3) as twin:
+        stuck = twin.hand.faulty.stuck.tolist()
+    assert res.masked_sensors == stuck and len(stuck) == 1
+    nominal = recognize_in_twin(small_model, lib, "cup", "tree", 3, small_config(), max_moves=4)
+    assert nominal.masked_sensors == []

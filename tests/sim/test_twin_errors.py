@@ -108,6 +108,23 @@ def test_stuck_sensors_always_report_and_stop_their_finger(box):
             assert moved != (f in stuck_fingers)  # the ReFlex stops a finger that reads contact
 
 
+def test_masked_stuck_sensors_stop_no_finger_and_are_not_reported(box):
+    # Issue 24: a sensor reading contact with the hand open is ignored (Hand.mask_sensors).
+    cfg = load_config(None, ["sim.fault_stuck=6"])
+    with open_twin(None, cfg.sim, seed=2) as twin:
+        hand = twin.hand
+        hand.open()
+        at_rest = np.flatnonzero(hand.state().contact)
+        assert set(at_rest.tolist()) == set(hand.faulty.stuck.tolist())
+        assert hand.mask_sensors(at_rest.tolist())
+        g = hand.guarded_close()
+        assert g.sensor_ids.size == 0  # nothing on the empty table, the stuck ones ignored
+        assert (g.finger_angles > 0.1).all()  # every finger closed
+        hand.open()
+        hand.mask_sensors([])  # cleared: they stop their fingers again
+        assert set(hand.guarded_close().sensor_ids.tolist()) == set(at_rest.tolist())
+
+
 def test_dead_sensors_never_report(box):
     from activetouch.interfaces import Pose
 
