@@ -74,7 +74,8 @@ class BarrettBH8Config(HandConfig):
     control_period_s: float = 0.02  # one poll (positions, strain, tactile) per step
     stream_timeout_s: float = 0.3  # no position reply from a puck for this long: lost
     connect_timeout_s: float = 2.0
-    reply_timeout_s: float = 0.2  # a property GET's reply
+    reply_timeout_s: float = 0.2  # a property GET's reply ...
+    reply_retries: int = 2  # ... asked again this many times before the puck counts as silent
     wake_gap_s: float = 0.01  # between STAT = 2 to each sleeping puck (libbarrett)
     wake_settle_s: float = 1.0  # after waking, before STAT is checked (libbarrett)
     done_poll_s: float = 0.05  # MODE poll while waiting for a move (libbarrett: 0.1 s)
@@ -371,9 +372,18 @@ class BarrettBH8Hand(Hand):
                 raise StreamLostError(f"BH8: CAN send failed ({e}): bus-off?") from None
 
     def _get(self, node: int, prop: int, what: str) -> int:
-        """A property of one puck, synchronously (its reply on group 6)."""
+        """A property of one puck, synchronously (its reply on group 6), asked up to
+        1 + `reply_retries` times (a frame may be lost)."""
         if prop < 0:
             raise ValueError(f"BH8: {self.pucks[node].name} has no property {what}")
+        for _ in range(self.cfg.reply_retries):
+            with contextlib.suppress(StreamLostError):
+                return self._get_once(node, prop, what)
+            if not self._running:
+                break
+        return self._get_once(node, prop, what)
+
+    def _get_once(self, node: int, prop: int, what: str) -> int:
         key = (node, prop)
         with self._cond:
             self._pending[key] = []
@@ -646,6 +656,10 @@ class BarrettBH8Hand(Hand):
             if check_stop and self.stop_latch.is_set:
                 raise StoppedError(f"BH8: {what} stopped")
             if self._done_moving(nodes):
+                # Readings after the move: state() and the next command see where it ended.
+                latest = self._latest
+                r = self._wait_reading(-1 if latest is None else latest.seq, 1.0, check_stop)
+                self._wait_reading(r.seq, self.cfg.stream_timeout_s, check_stop)
                 return
             if time.monotonic() > deadline:
                 self._idle_all()
@@ -665,10 +679,8 @@ class BarrettBH8Hand(Hand):
         self._wait_done(list(FINGERS), self.cfg.init_timeout_s, "initialise", True)
         self._set(codec.SPREAD, "CMD", codec.CMD_HI)
         self._wait_done([codec.SPREAD], self.cfg.init_timeout_s, "initialise", True)
-        # Positions read after the HI (counted from the open stops now) before the tighter
-        # plausibility window of an initialised hand applies.
-        r = self._wait_reading(-1 if self._latest is None else self._latest.seq, 1.0)
-        self._wait_reading(r.seq, self.cfg.stream_timeout_s)
+        # (_wait_done waited for positions read after the HI, counted from the open stops
+        # now, before the tighter plausibility window of an initialised hand applies.)
         self.initialized = True
         log.info("BH8: initialised (HI); taring the pads with the hand open")
         self._tare()

@@ -46,7 +46,7 @@ class Rig:
         self.emu = BH8Emulator(BH8EmulatorConfig(channel=self.channel, **(emu_kw or {})))
         drv_kw.setdefault("wake_settle_s", 0.01)
         drv_kw.setdefault("stream_timeout_s", 0.5)
-        drv_kw.setdefault("reply_timeout_s", 0.5)
+        drv_kw.setdefault("reply_timeout_s", 0.3)
         self.cfg = BarrettBH8Config(
             type="barrett-bh8", can_interface="virtual", can_channel=self.channel, **drv_kw
         )
@@ -251,3 +251,38 @@ def test_ten_thousand_fuzzed_frames_into_the_live_driver():
         assert rig.hand._poll is not None and rig.hand._poll.is_alive()
         # Plausible-looking garbage may latch a named fault; nothing else.
         assert rig.hand.fault is None or isinstance(rig.hand.fault, PuckFaultError)
+
+
+def test_lost_frames_are_counted_and_the_grasp_still_completes():
+    obj = FingerObject(contact_angle=[0.6, 0.8, 0.7])
+    with Rig(
+        {"obj": obj, "faults": Faults(loss=0.05), "seed": 3}, initialize_on_connect=True
+    ) as rig:
+        rig.hand.connect()
+        g = rig.hand.guarded_close()
+        assert rig.hand.last_close_reasons == ("contact", "contact", "contact")
+        assert set(g.sensor_ids.tolist()) <= {10, 13, 16, 34, 37, 40, 58, 61, 64}
+        assert rig.emu.counts["lost"] > 0
+        assert rig.hand.stats()["tactile_incomplete"] > 0
+
+
+def test_preshape_and_reconnect():
+    with Rig(initialize_on_connect=True) as rig:
+        rig.hand.connect()
+        rig.hand.preshape(0.5)
+        assert rig.emu.joints()["spread"][0] == pytest.approx(0.5, abs=0.01)
+        assert rig.hand.state().preshape == pytest.approx(0.5, abs=0.01)
+        with pytest.raises(ValueError):
+            rig.hand.preshape(4.0)
+        # The device may go and come back: a new connection finds the pucks awake and moves
+        # nothing (no second HI without the setting).
+        rig.hand.disconnect()
+        again = BarrettBH8Hand(
+            BarrettBH8Config(**{**vars(rig.cfg), "initialize_on_connect": False})
+        )
+        again.connect()
+        try:
+            assert rig.emu.counts["hi"] == 4 and rig.emu.counts["wakes"] == 4
+            assert not again.state().stale
+        finally:
+            again.disconnect()
