@@ -91,6 +91,9 @@ class BH8EmulatorConfig:
     channel: str = "bh8-emulator"
     interface: str = "virtual"
     firmware: int = 175
+    # Property name -> id this firmware answers to (None: the ids of firmware >= 145); to play
+    # older pucks, e.g. firmware 143 has no TACTID.
+    property_ids: dict[str, int] | None = None
     cts: int = 4096  # encoder counts per motor revolution
     secondary_encoders: bool = True
     strain: bool = True
@@ -133,6 +136,7 @@ class BH8Emulator:
         self.faults = self.cfg.faults
         self.obj = self.cfg.obj
         self.cpr = self.cfg.cts / (2 * math.pi)
+        self.props = dict(PROPS if self.cfg.property_ids is None else self.cfg.property_ids)
         self.pucks = {
             n: _Puck(node=n, actual=float(self.cfg.start_counts[i]), zero=0.0)
             for i, n in enumerate(NODES)
@@ -322,7 +326,7 @@ class BH8Emulator:
                 self._get(p, data[0] & 0x7F)
 
     def _name(self, prop: int) -> str | None:
-        for k, v in PROPS.items():
+        for k, v in self.props.items():
             if v == prop:
                 return k
         return None

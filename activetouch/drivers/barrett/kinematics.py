@@ -14,8 +14,12 @@ Parameters for Fingers":
 
 with r = (-1, 1, 0) and j = (1, 1, -1) for F1, F2, F3 (F3, the thumb, does not spread), and
 Aw 25 mm, A1 50 mm, A2 70 mm, A3 50 mm, Dw 84 mm, D3 9.5 mm, Phi2 2.46 deg, Phi3 50 deg.
-(The frame assignment was read in the manual's public copy; the lengths and offsets are the
-manual's values as this module records them: check them against your hand's manual.)
+The frame assignment was read in the manual's public copy (BH8-262 manual, Table 9). Of the
+numbers, Aw 25 mm, A1 50 mm, A2 70 mm, Phi3 50 deg and the outer = inner / 3 coupling agree
+with OpenRAVE's public BarrettHand model (rdiankov/openrave, src/robots/barretthand.kinbody.xml:
+finger bases at +-0.025 m, knuckle 0.05 m, inner link 0.07 m, outer mimic 0.33333 x inner +
+0.8727 rad); A3, Dw, D3 and Phi2 are the manual's values as recorded here, not cross-checked:
+check them against your hand's manual.
 
 The pads are modelled, not measured: a fingertip pad is 8 rows x 3 columns of cells on the
 outer link's inner face (rows 12 ... 47 mm from the outer joint along the link, columns 6 mm

@@ -21,6 +21,7 @@ from activetouch.drivers.barrett.bh8 import (
 )
 from activetouch.drivers.reflex.common import StreamLostError
 from activetouch.emulators.barrett_bh8 import (
+    PROPS,
     BH8Emulator,
     BH8EmulatorConfig,
     Faults,
@@ -286,3 +287,13 @@ def test_preshape_and_reconnect():
             assert not again.state().stale
         finally:
             again.disconnect()
+
+
+def test_property_ids_follow_the_firmware_version():
+    # Firmware 143 has TACT but no TACTID (libbarrett's table): a driver asking for TACTID
+    # anyway would wait for a reply that never comes and fail the connect.
+    old = {k: v for k, v in PROPS.items() if k != "TACTID"}
+    with Rig({"firmware": 143, "property_ids": old}) as rig:
+        rig.hand.connect()
+        assert all(p.ids.TACTID == -1 and p.tact for p in rig.hand.pucks.values())
+        assert not rig.hand.state().stale
