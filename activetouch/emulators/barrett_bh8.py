@@ -189,6 +189,18 @@ class BH8Emulator:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def power_cycle(self) -> None:
+        """The hand's power goes off and on: every puck asleep again, its encoder counting
+        from where the finger now is, not initialised, idle."""
+        with self._lock:
+            for p in self.pucks.values():
+                p.stat, p.mode, p.target, p.tact = 0, 0, None, 0
+                p.initialized = p.initializing = False
+                p.zero = p.actual
+                if p.node != SPREAD_NODE:
+                    p.inner_zero = self._joints(p)[0]
+            self.counts["power_cycles"] = self.counts.get("power_cycles", 0) + 1
+
     # -- what tests look at -----------------------------------------------------------------
 
     def joints(self) -> dict[str, list[float]]:

@@ -303,6 +303,17 @@ class BarrettBH8Hand(Hand):
         asleep = [p for p in self.pucks.values() if self._get(p.node, codec.STAT_ID, "STAT") != 2]
         if not asleep:
             return
+        if self.initialized:
+            # Asleep again: the pucks were reset (a power cycle), their encoders count from
+            # wherever the fingers are now. The HI zero is gone: motion is refused until the
+            # hand is initialised again.
+            self.initialized = False
+            log.warning(
+                "BH8: %s asleep at connect (reset since the last connection): the hand must "
+                "be initialised again (%s or initialize())",
+                ", ".join(p.name for p in asleep),
+                INIT_SETTING,
+            )
         for p in asleep:
             self._send(p.node, codec.encode_set(codec.STAT_ID, codec.STATUS_READY))
             time.sleep(self.cfg.wake_gap_s)

@@ -297,3 +297,20 @@ def test_property_ids_follow_the_firmware_version():
         rig.hand.connect()
         assert all(p.ids.TACTID == -1 and p.tact for p in rig.hand.pucks.values())
         assert not rig.hand.state().stale
+
+
+def test_a_power_cycle_loses_the_initialisation():
+    obj = FingerObject(contact_angle=[0.6, 0.8, 0.7])
+    with Rig({"obj": obj}, initialize_on_connect=True) as rig:
+        rig.hand.connect()
+        rig.hand.guarded_close()
+        rig.emu.power_cycle()  # the fingers stay closed; the pucks sleep and count from here
+        with pytest.raises(StreamLostError):
+            rig.hand.open()  # asleep pucks answer no GET P (nor MODE): the stream is lost
+        rig.hand.disconnect()
+        rig.hand.cfg.initialize_on_connect = False
+        rig.hand.connect()  # the daemon's reconnect: wakes them, moves nothing
+        assert not rig.hand.initialized
+        with pytest.raises(NotInitializedError, match=r"hand\.initialize_on_connect"):
+            rig.hand.open()
+        assert rig.emu.counts["hi"] == 4 and rig.emu.counts["motion_before_init"] == 0
