@@ -261,7 +261,8 @@ def test_lost_frames_are_counted_and_the_grasp_still_completes():
     ) as rig:
         rig.hand.connect()
         g = rig.hand.guarded_close()
-        assert rig.hand.last_close_reasons == ("contact", "contact", "contact")
+        # Pad and strain gauge load together: with a tactile set lost, the strain may be first.
+        assert set(rig.hand.last_close_reasons) <= {"contact", "strain"}
         assert set(g.sensor_ids.tolist()) <= {10, 13, 16, 34, 37, 40, 58, 61, 64}
         assert rig.emu.counts["lost"] > 0
         assert rig.hand.stats()["tactile_incomplete"] > 0
