@@ -24,9 +24,11 @@ pucks, stuck tactile cells (full scale), bus-off (nothing sent or taken).
 
 from __future__ import annotations
 
+import argparse
 import logging
 import math
 import random
+import signal
 import threading
 import time
 from dataclasses import dataclass, field
@@ -502,3 +504,56 @@ class BH8Emulator:
         if mode in (0, 3):
             p.target = None
         p.mode = mode
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="activetouch emulate barrett-bh8",
+        description="BH8 pucks on a CAN bus. A virtual bus lives in one process only: across "
+        "processes use the kernel's vcan (ip link add dev vcan0 type vcan; ip link set vcan0 up).",
+    )
+    p.add_argument("--interface", default="socketcan", help="python-can interface")
+    p.add_argument("--channel", default="vcan0", help="CAN channel (never the hand's can0)")
+    p.add_argument(
+        "--contact-angle",
+        type=float,
+        nargs=3,
+        default=[math.inf] * 3,
+        metavar=("F1", "F2", "F3"),
+        help="inner-link angle, rad, where each finger meets the object (inf: nothing)",
+    )
+    p.add_argument("--tip-gap", type=float, default=0.2, help="outer rad from breakaway to touch")
+    p.add_argument("--firmware", type=int, default=175)
+    p.add_argument("--loss", type=float, default=0.0, help="fault: fraction of frames lost")
+    p.add_argument("--silent", type=int, nargs="*", default=[], help="fault: pucks that are mute")
+    p.add_argument("--no-secondary-encoders", action="store_true")
+    return p
+
+
+def config_from_args(a: argparse.Namespace) -> BH8EmulatorConfig:
+    return BH8EmulatorConfig(
+        interface=a.interface,
+        channel=a.channel,
+        firmware=a.firmware,
+        secondary_encoders=not a.no_secondary_encoders,
+        faults=Faults(loss=a.loss, silent=list(a.silent)),
+        obj=FingerObject(contact_angle=list(a.contact_angle), tip_gap=[a.tip_gap] * 3),
+    )
+
+
+def main(argv: list[str] | None = None, done: threading.Event | None = None) -> int:
+    """Run until SIGINT / SIGTERM (or `done`, for tests)."""
+    a = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO)
+    if done is None:
+        done = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: done.set())
+    with BH8Emulator(config_from_args(a)):
+        print(f"barrett-bh8 emulator on {a.interface} {a.channel}", flush=True)
+        done.wait()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -315,3 +315,42 @@ def test_a_power_cycle_loses_the_initialisation():
         with pytest.raises(NotInitializedError, match=r"hand\.initialize_on_connect"):
             rig.hand.open()
         assert rig.emu.counts["hi"] == 4 and rig.emu.counts["motion_before_init"] == 0
+
+
+def test_the_emulate_runner():
+    # `activetouch emulate barrett-bh8 ...` in-process on a virtual channel (across processes
+    # it needs the kernel's vcan, which tests do not use).
+    from activetouch.emulators import barrett_bh8
+
+    ch = f"bh8-runner-{next(_n)}"
+    done = threading.Event()
+    argv = ["--interface", "virtual", "--channel", ch, "--contact-angle", "0.6", "0.8", "0.7"]
+    t = threading.Thread(target=barrett_bh8.main, args=(argv, done))
+    t.start()
+    hand = BarrettBH8Hand(
+        BarrettBH8Config(
+            type="barrett-bh8",
+            can_interface="virtual",
+            can_channel=ch,
+            wake_settle_s=0.01,
+            initialize_on_connect=True,
+            connect_timeout_s=10.0,
+        )
+    )
+    try:
+        assert wait_for(lambda: _answers(hand))
+        g = hand.guarded_close()
+        assert sorted(g.sensor_ids.tolist()) == [10, 13, 16, 34, 37, 40, 58, 61, 64]
+    finally:
+        hand.disconnect()
+        done.set()
+        t.join(timeout=10)
+    assert not t.is_alive()
+
+
+def _answers(hand: BarrettBH8Hand) -> bool:
+    try:
+        hand.connect()
+    except StreamLostError:
+        return False
+    return True
