@@ -244,6 +244,10 @@ class BarrettBH8Hand(Hand):
             return
         if self._bus is None:
             self._bus = self._open_bus()
+        with self._cond:  # nothing from an earlier connection is served as new
+            self._latest = None
+            self._pos_t[:] = -np.inf
+            self._asm = {p: codec.TactileAssembler() for p in codec.HAND_PUCKS}
         self._running = True
         self._rx = threading.Thread(target=self._rx_loop, name="bh8-rx", daemon=True)
         self._rx.start()
