@@ -33,6 +33,7 @@ HAND_TYPES: dict[str, str] = {
     "fake": "activetouch.fakes.replay:FakeHandConfig",
     "reflex-takktile": "activetouch.rigs.reflex_emulated:ReflexTakktileRigConfig",
     "reflex-sf": "activetouch.drivers.reflex.sf:ReflexSFConfig",
+    "barrett-bh8": "activetouch.drivers.barrett.bh8:BarrettBH8Config",
 }
 ARM_TYPES: dict[str, str] = {
     "twin-floating": "activetouch.sim.devices:TwinFloatingArmConfig",

@@ -1,5 +1,6 @@
-"""`activetouch emulate reflex-takktile|reflex-sf|baxter ...`: a byte-level device emulator on
-this machine (loopback by default), for trying the drivers and the daemon without hardware."""
+"""`activetouch emulate reflex-takktile|reflex-sf|baxter|barrett-bh8 ...`: a byte-level device
+emulator on this machine (loopback by default), for trying the drivers and the daemon without
+hardware."""
 
 from __future__ import annotations
 
@@ -9,13 +10,14 @@ EMULATORS = {
     "reflex-takktile": ("activetouch.rigs.emulate", True),
     "reflex-sf": ("activetouch.rigs.emulate", True),
     "baxter": ("activetouch.emulators.baxter_bridge", False),
+    "barrett-bh8": ("activetouch.emulators.barrett_bh8", False),
 }
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "emulate",
-        help="run a device emulator that speaks the device's bytes (ReFlex, Baxter bridge)",
+        help="run a device emulator that speaks the device's bytes (ReFlex, Baxter bridge, BH8)",
         description="Run a byte-level emulator of a device. Options after the device name go "
         "to the emulator: `activetouch emulate baxter --help` lists them.",
     )
