@@ -35,6 +35,7 @@ Objective = Literal["final", "anytime", "info_gain"]
 MovementCost = Literal["pose", "travel_time"]
 GridLayout = Literal["shared", "per_object"]
 Sensing = Literal["tactile", "stall"]
+ZenohMode = Literal["peer", "client"]
 
 
 @dataclass
@@ -244,9 +245,15 @@ class ServiceConfig:
     """Recognition daemon (`activetouch serve`) and its Zenoh clients (docs/api.md)."""
 
     robot: str = "sim"  # one key chunk: everything lives under activetouch/<robot>/
-    # Zenoh endpoints. Loopback only unless told otherwise; scouting is always off.
-    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    # Zenoh endpoints. Loopback only unless told otherwise; scouting is always off. The
+    # default port is 7457, not Zenoh's 7447: a ROS 2 robot PC runs rmw_zenohd on
+    # tcp/[::]:7447 (docs/api.md, "Running next to ROS 2").
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7457"])
     connect: list[str] = field(default_factory=list)
+    # "peer" (default): the daemon listens on `listen` and clients connect to it. "client": it
+    # joins an existing Zenoh router (e.g. the lab's rmw_zenohd) named by `connect` and listens
+    # on nothing (`listen` is ignored); its clients reach it through that router.
+    zenoh_mode: ZenohMode = "peer"
     zenoh_config: str = ""  # Zenoh JSON5 file to start from (TLS, access control); "" none
     node_timeout_s: float = 5.0  # quick hand/arm calls (state, stop)
     motion_timeout_s: float = 60.0  # hand/arm motions (open, grasp, move)

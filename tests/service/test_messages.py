@@ -302,7 +302,7 @@ def test_keys() -> None:
 
 def test_zenoh_settings_are_explicit_and_local() -> None:
     s = ZenohSettings()
-    assert s.listen == ("tcp/127.0.0.1:7447",) and s.connect == ()
+    assert s.listen == ("tcp/127.0.0.1:7457",) and s.connect == ()
     conf = make_config(ZenohSettings.client("tcp/127.0.0.1:9000"))
     assert json.loads(conf.get_json("mode")) == "peer"
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False

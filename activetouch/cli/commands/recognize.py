@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=None,
         help="recognise through the daemon at this Zenoh endpoint (repeatable), "
-        "e.g. tcp/127.0.0.1:7447",
+        "e.g. tcp/127.0.0.1:7457",
     )
     p.add_argument("--robot", default=None, help="robot name with --connect (service.robot)")
     p.add_argument(
