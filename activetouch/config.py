@@ -278,6 +278,22 @@ class ServiceConfig:
 
 
 @dataclass
+class RecordingConfig:
+    """Every recognition (`recognize`, the daemon) written as MCAP under <data>/recordings/
+    (docs/recordings.md); the oldest are deleted beyond these limits (0: no limit)."""
+
+    enabled: bool = True
+    max_total_mb: float = 1000.0
+    max_age_days: float = 30.0
+
+    def check(self) -> None:
+        for name in ("max_total_mb", "max_age_days"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and v >= 0 and math.isfinite(v)):
+                raise ConfigError(f"recording.{name} must be >= 0 (0: no limit), got {v}")
+
+
+@dataclass
 class WorkcellConfig:
     """Where things are, in the robot base frame (x forward, z up), metres. The same on every
     robot, real or simulated: the table plane that drops table contacts comes from here."""
@@ -319,6 +335,7 @@ class Config:
     sim: SimConfig = field(default_factory=SimConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
     workcell: WorkcellConfig = field(default_factory=WorkcellConfig)
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
     # Devices: `type` picks the device type (activetouch.device_types), the rest its settings.
     hand: Any = field(default_factory=lambda: _default_device("hand"))
     arm: Any = field(default_factory=lambda: _default_device("arm"))
@@ -378,6 +395,7 @@ def load_config(
     _check_choices(cfg)
     default_workcell(cfg)
     cfg.workcell.check()
+    cfg.recording.check()
     return cfg
 
 
