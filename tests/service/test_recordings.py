@@ -313,3 +313,62 @@ def test_bad_limits_are_refused_when_the_config_loads() -> None:
     with pytest.raises(ConfigError, match=r"recording\.max_age_days must be >= 0"):
         load_config(None, ["recording.max_age_days=-2"])
     assert load_config(None).recording == RecordingConfig(True, 1000.0, 30.0)
+
+
+def test_a_daemon_killed_mid_recognition_leaves_its_finished_grasps(
+    home: Path, tmp_path: Path
+) -> None:
+    """SIGKILL (no goodbye) after the second grasp's progress: the recording, without footer,
+    still holds at least those two grasps, and they replay to their recorded labels."""
+    import threading
+
+    from activetouch.transport.zenoh_session import free_tcp_port
+    from tests.service.test_daemon import ROBOT, DaemonProcess, serve_args, wait_ready
+
+    port = free_tcp_port()
+    d = DaemonProcess(
+        [
+            *serve_args(home, port),
+            "--set",
+            "service.sim_motion_delay_s=0.2",
+            "--set",
+            "session.stable_grasps=100",
+        ],
+        tmp_path / "daemon.log",
+    )
+    endpoint = f"tcp/127.0.0.1:{port}"
+    second = threading.Event()
+    try:
+        wait_ready(d, endpoint)
+        with open_client([endpoint], ROBOT, timeout=10.0) as c:
+            req = RecognizeRequest(
+                policy="tree", max_moves=40, seed=4, object="sphere", session_id="killed"
+            )
+
+            def on_progress(p) -> None:
+                if p.move >= 2:
+                    second.set()
+
+            out: dict = {}
+
+            def run() -> None:
+                try:
+                    c.recognize(req, on_progress, timeout=120.0)
+                except Exception as e:
+                    out["error"] = e
+
+            t = threading.Thread(target=run, daemon=True)
+            t.start()
+            assert second.wait(60.0), d.text()
+            d.kill()  # SIGKILL by its pid
+            t.join(30.0)
+            assert "error" in out
+    finally:
+        d.kill()
+    path = _only_recording(home)
+    assert path.name.endswith("-killed.mcap")
+    rec = read_recording(path)
+    assert not rec.complete and rec.result is None
+    assert len(rec.grasps) >= 2
+    out2 = replay(rec, load_model(paths.default_model(home)))
+    assert out2.same_labels and out2.max_abs_diff == 0.0
