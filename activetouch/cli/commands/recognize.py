@@ -179,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         raise
     recorded = close_recorder(recorder, root, cfg, result=result_record(res))
     _report(args, res, args.object, policy, args.seed, console)
-    if recorded is not None and not args.json:
+    if recorded is not None:  # with --json on stderr, beside the progress
         console.print(f"recorded: {recorded}", highlight=False)
     return 0
 

@@ -99,9 +99,11 @@ def run_list(args: argparse.Namespace) -> int:
     if not rows:
         console.print(f"no recordings in {paths.recordings_dir(root)}", highlight=False)
         return 0
+    w = max(len(row["id"]) for row in rows)
     console.print(
-        f"{'id':<44} {'time':<19}  {'object':<14} {'label':<14} {'grasps':>6} {'size':>10}",
+        f"{'id':<{w}}  {'time':<19}  {'object':<14} {'label':<14} {'grasps':>6} {'size':>10}",
         highlight=False,
+        soft_wrap=True,
     )
     for row in rows:
         note = ""
@@ -110,7 +112,7 @@ def run_list(args: argparse.Namespace) -> int:
         elif not row.get("complete", True):
             note = "  incomplete (cut short)"
         console.print(
-            f"{row['id']:<44} {_when(row.get('started')):<19}  "
+            f"{row['id']:<{w}}  {_when(row.get('started')):<19}  "
             f"{row.get('object') or '-'!s:<14} {row.get('label') or '-'!s:<14} "
             f"{row.get('grasps', '?')!s:>6} {row.get('size', 0) / 1024:>6.1f} KiB{note}",
             highlight=False,
