@@ -366,3 +366,15 @@ def test_robot_time_fields_are_optional_and_old_results_still_decode() -> None:
     with pytest.raises(MessageError, match="robot_seconds"):
         m.decode(b'{"v":1,"robot_seconds":1.0}', m.MotionStats)  # unknown field: a typo
     assert Keys("b").arm_motion_stats == "activetouch/b/arm/motion_stats"
+
+
+def test_the_record_field_is_sent_only_when_set() -> None:
+    """`RecognizeRequest.record` came later: a request without it encodes as before (a daemon
+    from before it, which refuses unknown fields, still reads it), and both forms decode."""
+    plain = m.RecognizeRequest(policy="tree", max_moves=2, object="cup")
+    assert b"record" not in m.encode(plain)
+    assert m.decode(m.encode(plain), m.RecognizeRequest) == plain
+    off = m.RecognizeRequest(policy="tree", max_moves=2, object="cup", record=False)
+    assert b'"record":false' in m.encode(off)
+    assert m.decode(m.encode(off), m.RecognizeRequest).record is False
+    assert m.decode(b'{"v":1,"policy":"tree","max_moves":2}', m.RecognizeRequest).record is None

@@ -258,6 +258,8 @@ def test_the_daemon_records_and_honours_record_false(home: Path) -> None:
                 RecognizeRequest(policy="tree", max_moves=2, seed=2, object="cup", record=False),
                 timeout=120.0,
             )
+        cli = ["recognize", "--connect", ep, "--robot", "recbot", "--object", "sphere"]
+        assert main([*cli, "--max-moves", "2", "--no-record", "--data", str(home)]) == 0
     finally:
         daemon.close()
     path = _only_recording(home)
