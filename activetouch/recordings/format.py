@@ -7,8 +7,8 @@ rosbags' typestore, so `ros2 bag play`, Foxglove and Lichtblick decode them):
   proximal finger angles;
 - ``/activetouch/contacts`` (sensor_msgs/msg/PointCloud2): after each grasp, its contacts in
   the hand frame (fields x y z pressure as float32, sensor_id as uint32);
-- ``/tf`` (tf2_msgs/msg/TFMessage): world -> object at the start, object -> hand after each
-  grasp;
+- ``/tf_static`` (tf2_msgs/msg/TFMessage): world -> object (the placement), at the start;
+- ``/tf`` (tf2_msgs/msg/TFMessage): object -> hand (the wrist pose) after each grasp;
 - ``/activetouch/wrist_goal`` (geometry_msgs/msg/PoseStamped): before each move, the wrist
   goal in the object frame.
 
@@ -30,11 +30,13 @@ HAND_JOINTS = ("reflex_preshape", "reflex_proximal_1", "reflex_proximal_2", "ref
 JOINT_STATES = "/joint_states"
 CONTACTS = "/activetouch/contacts"
 TF = "/tf"
+TF_STATIC = "/tf_static"
 WRIST_GOAL = "/activetouch/wrist_goal"
 ROS_TOPICS = {
     JOINT_STATES: "sensor_msgs/msg/JointState",
     CONTACTS: "sensor_msgs/msg/PointCloud2",
     TF: "tf2_msgs/msg/TFMessage",
+    TF_STATIC: "tf2_msgs/msg/TFMessage",
     WRIST_GOAL: "geometry_msgs/msg/PoseStamped",
 }
 

@@ -73,7 +73,8 @@ class RecordingWriter:
     def placement(self, pose: np.ndarray) -> None:
         """The object frame in the world (robot base) frame, (7,) x y z qx qy qz qw."""
         ns = time.time_ns()
-        self._add(fmt.TF, fmt.tf_message(ns, [(fmt.WORLD_FRAME, fmt.OBJECT_FRAME, pose)]), ns)
+        tf = fmt.tf_message(ns, [(fmt.WORLD_FRAME, fmt.OBJECT_FRAME, pose)])
+        self._add(fmt.TF_STATIC, tf, ns)
 
     def _add(self, topic: str, data: bytes, ns: int | None = None) -> None:
         ns = time.time_ns() if ns is None else ns
