@@ -35,6 +35,7 @@ Objective = Literal["final", "anytime", "info_gain"]
 MovementCost = Literal["pose", "travel_time"]
 GridLayout = Literal["shared", "per_object"]
 Sensing = Literal["tactile", "stall"]
+ZenohMode = Literal["peer", "client"]
 
 
 @dataclass
@@ -244,9 +245,15 @@ class ServiceConfig:
     """Recognition daemon (`activetouch serve`) and its Zenoh clients (docs/api.md)."""
 
     robot: str = "sim"  # one key chunk: everything lives under activetouch/<robot>/
-    # Zenoh endpoints. Loopback only unless told otherwise; scouting is always off.
-    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    # Zenoh endpoints. Loopback only unless told otherwise; scouting is always off. The
+    # default port is 7457, not Zenoh's 7447: a ROS 2 robot PC runs rmw_zenohd on
+    # tcp/[::]:7447 (docs/api.md, "Running next to ROS 2").
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:7457"])
     connect: list[str] = field(default_factory=list)
+    # "peer" (default): the daemon listens on `listen` and clients connect to it. "client": it
+    # joins an existing Zenoh router (e.g. the lab's rmw_zenohd) named by `connect` and listens
+    # on nothing (`listen` is ignored); its clients reach it through that router.
+    zenoh_mode: ZenohMode = "peer"
     zenoh_config: str = ""  # Zenoh JSON5 file to start from (TLS, access control); "" none
     node_timeout_s: float = 5.0  # quick hand/arm calls (state, stop)
     motion_timeout_s: float = 60.0  # hand/arm motions (open, grasp, move)
@@ -268,6 +275,22 @@ class ServiceConfig:
     # The twin's nodes sleep this long per motion (move, grasp), to emulate a real robot's
     # timing in demos and tests of cancel / shutdown; 0 runs the twin flat out.
     sim_motion_delay_s: float = 0.0
+
+
+@dataclass
+class RecordingConfig:
+    """Every recognition (`recognize`, the daemon) written as MCAP under <data>/recordings/
+    (docs/recordings.md); the oldest are deleted beyond these limits (0: no limit)."""
+
+    enabled: bool = True
+    max_total_mb: float = 1000.0
+    max_age_days: float = 30.0
+
+    def check(self) -> None:
+        for name in ("max_total_mb", "max_age_days"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and v >= 0 and math.isfinite(v)):
+                raise ConfigError(f"recording.{name} must be >= 0 (0: no limit), got {v}")
 
 
 @dataclass
@@ -312,6 +335,7 @@ class Config:
     sim: SimConfig = field(default_factory=SimConfig)
     service: ServiceConfig = field(default_factory=ServiceConfig)
     workcell: WorkcellConfig = field(default_factory=WorkcellConfig)
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
     # Devices: `type` picks the device type (activetouch.device_types), the rest its settings.
     hand: Any = field(default_factory=lambda: _default_device("hand"))
     arm: Any = field(default_factory=lambda: _default_device("arm"))
@@ -371,6 +395,7 @@ def load_config(
     _check_choices(cfg)
     default_workcell(cfg)
     cfg.workcell.check()
+    cfg.recording.check()
     return cfg
 
 

@@ -46,3 +46,8 @@ def default_dataset(root: Path, variant: str = "") -> Path:
 
 def default_model(root: Path) -> Path:
     return models_dir(root) / DEFAULT_MODEL
+
+
+def recordings_dir(root: Path) -> Path:
+    """Every recognition's MCAP file (docs/recordings.md)."""
+    return root / "recordings"

@@ -53,6 +53,7 @@ __all__ = [
     "JsonFormatter",
     "LogfmtFormatter",
     "check_service_config",
+    "listen_endpoints",
     "sd_notify",
     "serve",
     "setup_logging",
@@ -99,14 +100,19 @@ def check_service_config(svc: ServiceConfig) -> None:
     for name in non_negative:
         if not getattr(svc, name) >= 0:
             raise ConfigError(f"service.{name} must be >= 0, got {getattr(svc, name)}")
+    if svc.zenoh_mode == "client" and not svc.connect:
+        raise ConfigError(
+            "service.zenoh_mode=client joins a Zenoh router: name it in service.connect, "
+            'e.g. service.connect=["tcp/127.0.0.1:7447"] for a local rmw_zenohd'
+        )
     if svc.zenoh_config and not Path(svc.zenoh_config).is_file():
         raise ConfigError(f"service.zenoh_config: {svc.zenoh_config} does not exist")
 
 
 def exposed_endpoints(svc: ServiceConfig) -> list[str]:
     """Listen endpoints reachable from other machines and not protected by TLS."""
-    out = []
-    for ep in svc.listen:
+    out: list[str] = []
+    for ep in listen_endpoints(svc):
         proto, _, rest = ep.partition("/")
         host = rest.rsplit(":", 1)[0].strip("[]")
         local = host in ("localhost", "::1") or host.startswith("127.")
@@ -115,11 +121,19 @@ def exposed_endpoints(svc: ServiceConfig) -> list[str]:
     return out
 
 
+def listen_endpoints(svc: ServiceConfig) -> list[str]:
+    """What the daemon listens on: `svc.listen` in peer mode, nothing in client mode."""
+    return [] if svc.zenoh_mode == "client" else list(svc.listen)
+
+
 def zenoh_settings(svc: ServiceConfig) -> ZenohSettings:
-    """The daemon's session: listens on `svc.listen`, connects to `svc.connect`, scouting off."""
+    """The daemon's session, scouting off. Peer mode (default): listens on `svc.listen` and
+    connects to `svc.connect`. Client mode: a client of the Zenoh router at `svc.connect`
+    (e.g. the lab's rmw_zenohd), listening on nothing."""
     return ZenohSettings(
-        listen=tuple(svc.listen),
+        listen=tuple(listen_endpoints(svc)),
         connect=tuple(svc.connect),
+        mode=svc.zenoh_mode,
         config_file=Path(svc.zenoh_config) if svc.zenoh_config else None,
     )
 
@@ -171,7 +185,11 @@ class Daemon:
             self.zs = ZenohSession(zenoh_settings(svc))
             log.info(
                 "zenoh session open",
-                extra={"listen": ",".join(svc.listen), "connect": ",".join(svc.connect)},
+                extra={
+                    "mode": svc.zenoh_mode,
+                    "listen": ",".join(listen_endpoints(svc)),
+                    "connect": ",".join(svc.connect),
+                },
             )
             for ep in exposed_endpoints(svc):
                 log.warning(

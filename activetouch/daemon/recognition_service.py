@@ -59,6 +59,7 @@ from activetouch.errors import (
 )
 from activetouch.planning.motion.base import workcell_placement
 from activetouch.planning.policies import PlanningState, make_policy
+from activetouch.recordings.writer import close_recorder
 from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
     CancelRequest,
@@ -160,6 +161,7 @@ class RecognitionService:
         from activetouch.session.local import load_trained
 
         set_redactions(data)
+        self.data, self.model_dir = data, model_dir  # recordings go to <data>/recordings/
         self.keys = Keys(robot)
         self.robot, self.mode, self.cfg = robot, mode, cfg
         self.svc = cfg.service
@@ -588,14 +590,10 @@ class RecognitionService:
                 self._cv.notify_all()
 
     def _recognize(self, running: Running) -> RecognizeResult:
-        from activetouch.session.loop import Progress as SessionProgress
-        from activetouch.session.loop import RecognitionSession, belief_table_of
-
         job, req, cfg = running.job, running.job.request, self.cfg
         model = self.model
         if model is None:  # unloaded since admission (cannot happen today; keep the text)
             raise DataError(f"no model: run `activetouch train` ({self.model_error})")
-        sid = job.session_id
         wc = cfg.workcell
         placement = workcell_placement(wc)
         if self.links.place is not None:
@@ -612,6 +610,54 @@ class RecognitionService:
                 ),
             )
         support_z = placement.support_z(wc.table_top_z)
+        recorder = self._open_recorder(running, placement)
+        try:
+            result = self._run_session(running, model, support_z, recorder)
+        except BaseException as e:
+            close_recorder(recorder, self.data or Path("."), cfg, error=e)
+            raise
+        close_recorder(recorder, self.data or Path("."), cfg, result=msgspec.to_builtins(result))
+        return result
+
+    def _open_recorder(self, running: Running, placement: Any) -> Any:
+        """The recording of this recognition (None: `recording.enabled` off, the request's
+        `record: false`, or no data directory)."""
+        from activetouch.recordings.format import placement_pose
+        from activetouch.recordings.writer import open_recorder
+
+        job, req = running.job, running.job.request
+        if self.data is None or req.record is False:
+            return None
+        try:
+            return open_recorder(
+                self.data,
+                self.cfg,
+                session_id=job.session_id,
+                source=f"daemon {self.robot} ({self.mode})",
+                policy=req.policy,
+                max_moves=req.max_moves,
+                seed=job.seed,
+                object_name=req.object,
+                model=self.model,
+                model_dir=self.model_dir,
+                placement=placement_pose(placement.xyz, placement.yaw_rad),
+                extra={
+                    "horizon": req.horizon or self.cfg.planner.horizon,
+                    "simulations": req.simulations or self.cfg.planner.simulations,
+                },
+            )
+        except Exception as e:  # a recording must never stop a recognition
+            log.warning("cannot record", extra={"session": job.session_id, "error": str(e)})
+            return None
+
+    def _run_session(
+        self, running: Running, model: Any, support_z: float, recorder: Any
+    ) -> RecognizeResult:
+        from activetouch.session.loop import Progress as SessionProgress
+        from activetouch.session.loop import RecognitionSession, belief_table_of
+
+        job, req, cfg = running.job, running.job.request, self.cfg
+        sid = job.session_id
         # A new recognition is the operator's go-ahead after a stop (see the module).
         running.interlock.check("starting")
         self.hand.clear_stop()
@@ -669,6 +715,7 @@ class RecognitionService:
             running.cancel,
             support_z=support_z,
             recognition=self.cfg.recognition,
+            recorder=recorder,
         )
         t_run = time.perf_counter()
         try:

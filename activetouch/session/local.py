@@ -19,6 +19,7 @@ from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.policies import POLICY_NAMES, Policy, make_policy
+from activetouch.recordings.format import placement_pose
 from activetouch.session.loop import (
     Progress,
     RecognitionResult,
@@ -29,6 +30,7 @@ from activetouch.session.loop import (
 if TYPE_CHECKING:
     from activetouch.devices import Devices
     from activetouch.planning.motion.base import Placement
+    from activetouch.recordings.writer import SafeRecorder
 
 
 def model_path(root: Path, explicit: str | None) -> Path:
@@ -60,13 +62,15 @@ def recognize_in_twin(
     max_moves: int | None = None,
     on_progress: Callable[[Progress], None] | None = None,
     cancel: threading.Event | None = None,
+    recorder: SafeRecorder | None = None,
 ) -> RecognitionResult:
     """Recognise `object_name` placed in a fresh twin; deterministic for a seed.
 
     The floating twin (``arm.type = "twin-floating"``, the default) is opened directly; any
     other arm (``twin-baxter``) runs on the configured devices (`make_devices`), which place
     the object as ``sim/place`` does. `data` is the data directory those devices read the
-    object library from (default: the library's)."""
+    object library from (default: the library's). `recorder`: the recording it writes
+    (`recordings.writer.open_recorder`; the caller finishes it)."""
     from activetouch.sim.twin import open_twin
 
     session_cfg = cfg.session
@@ -84,9 +88,22 @@ def recognize_in_twin(
     rng = np.random.default_rng(seed)
     if cfg.arm.type != FLOATING_ARM:
         return _recognize_on_devices(
-            model, library, spec.name, policy, rng, seed, cfg, session_cfg, on_progress, cancel
+            model,
+            library,
+            spec.name,
+            policy,
+            rng,
+            seed,
+            cfg,
+            session_cfg,
+            on_progress,
+            cancel,
+            recorder,
         )
     with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
+        if recorder is not None:
+            pl = twin.wrist.placement
+            recorder.placement(placement_pose(pl.xyz, pl.yaw_rad))
         session = RecognitionSession(
             twin.hand,
             twin.wrist,
@@ -98,6 +115,7 @@ def recognize_in_twin(
             cancel,
             support_z=twin.support_z,
             recognition=cfg.recognition,
+            recorder=recorder,
         )
         return session.run()
 
@@ -113,6 +131,7 @@ def _recognize_on_devices(
     session_cfg: SessionConfig,
     on_progress: Callable[[Progress], None] | None,
     cancel: threading.Event | None,
+    recorder: SafeRecorder | None = None,
 ) -> RecognitionResult:
     """The recognition on `make_devices(cfg)`: placed through the devices' ``sim/place``, the
     wrist told where the object stands, the table plane from the workcell (as the daemon
@@ -122,6 +141,8 @@ def _recognize_on_devices(
         devices,
         placement,
     ):
+        if recorder is not None:
+            recorder.placement(placement_pose(placement.xyz, placement.yaw_rad))
         session = RecognitionSession(
             devices.hand,
             devices.wrist,
@@ -133,6 +154,7 @@ def _recognize_on_devices(
             cancel,
             support_z=placement.support_z(cfg.workcell.table_top_z),
             recognition=cfg.recognition,
+            recorder=recorder,
         )
         return session.run()
 
@@ -160,3 +182,24 @@ def placed_devices(
         yield devices, placement
     finally:
         devices.close()
+
+
+def result_record(res: RecognitionResult) -> dict:
+    """What a recording's result message holds for an in-process recognition (the daemon's
+    `RecognizeResult` field names)."""
+    return {
+        "label": res.label,
+        "probability": float(res.probability),
+        "labels": list(res.labels),
+        "moves": res.moves,
+        "skipped": res.skipped,
+        "stop_reason": res.stop_reason,
+        "pose_ids": [int(p) for p in res.pose_ids],
+        "motion_s": res.motion_s,
+        "motion_planning_s": res.motion_planning_s,
+        "grasp_s": res.grasp_s,
+        "search_s": res.search_s,
+        "planning_s": res.planning_s,
+        "total_s": res.total_s,
+        "elapsed_s": res.elapsed_s,
+    }

@@ -31,6 +31,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -153,6 +154,82 @@ def training_preshapes(model: TrainedModel) -> np.ndarray:
     return np.full(len(model.observation.pose_xyz), preshape)
 
 
+class SessionRecorder(Protocol):
+    """What a session tells a recording (`activetouch.recordings.writer.SafeRecorder`)."""
+
+    def wrist_goal(self, move: int, pose_id: int, pose: np.ndarray) -> None: ...
+    def plan(self, move: int, plan: dict[str, Any]) -> None: ...
+    def error(
+        self, move: int, kind: str, error: str, error_type: str = "", **extra: Any
+    ) -> None: ...
+    def grasp(
+        self,
+        move: int,
+        pose_id: int,
+        pose: np.ndarray,
+        grasp: Grasp,
+        probabilities: np.ndarray,
+        label: str,
+        felt: bool,
+        robot_time: dict[str, float],
+    ) -> None: ...
+
+
+def plan_record(plan: Plan, search_s: float) -> dict[str, Any]:
+    """The planner's choice and its values, for a recording."""
+    out: dict[str, Any] = {
+        "policy": plan.policy,
+        "poses": [int(v) for v in plan.poses],
+        "actions": [int(v) for v in plan.actions],
+        "value": float(plan.value),
+        "exhausted": bool(plan.exhausted),
+        "search_s": float(search_s),
+    }
+    sr = plan.search
+    if sr is not None:
+        out["step_values"] = [float(v) for v in sr.step_values]
+        out["step_visits"] = [int(v) for v in sr.step_visits]
+        out["simulations"] = int(sr.simulations)
+        out["n_nodes"] = int(sr.n_nodes)
+    return out
+
+
+class BeliefTracker:
+    """p(y | the grasps so far), one grasp at a time: the histogram classifier on the summed
+    triangle histogram (the paper), or Bayes over the grasps' likelihoods at their poses
+    (`recognition.belief = grasp_likelihood`). The session and `replay` share it, so a replay
+    gives the recorded labels bit for bit."""
+
+    def __init__(
+        self, model: TrainedModel, likelihood: tuple[GraspLikelihood, LikelihoodParams] | None
+    ) -> None:
+        self.model, self.likelihood = model, likelihood
+        self.counts = np.zeros(model.spec.n_bins)
+        self._log_b = np.zeros(len(model.class_names))  # summed log p(grasp | y, pose)
+
+    @property
+    def log_belief(self) -> np.ndarray | None:
+        return None if self.likelihood is None else self._log_b
+
+    def update(self, grasp: Grasp, pose: Pose) -> tuple[np.ndarray, bool, np.ndarray]:
+        """(p(y | ...), whether anything was felt that tells classes apart, the grasp's
+        observation cells) after adding `grasp`, made at wrist `pose` (object frame)."""
+        tris = self.model.triangles(grasp.xyz)
+        add = self.model.spec.counts(tris)
+        cells = self.model.observation.cells_of(tris)
+        self.counts = self.counts + add
+        if self.likelihood is None:
+            p = self.model.proba(self.counts)
+            # No triangle yet: p is uniform and its argmax (class 0) says nothing.
+            felt = bool(self.counts.any())
+        else:
+            model_l, params = self.likelihood
+            self._log_b = self._log_b + model_l.log_likelihood(grasp, pose, params)
+            p = softmax_belief(self._log_b)
+            felt = bool(np.ptp(p) > 1e-12)  # even an empty grasp may tell classes apart
+        return p, felt, cells
+
+
 class RecognitionSession:
     def __init__(
         self,
@@ -166,11 +243,13 @@ class RecognitionSession:
         cancel: threading.Event | None = None,
         support_z: float | None = None,
         recognition: RecognitionConfig | None = None,
+        recorder: SessionRecorder | None = None,
     ) -> None:
         """`support_z`: the table plane in the object frame (the object pose is known, as in
         the paper, from the workcell); contacts on it are dropped, as in training.
         `recognition`: the settings that choose the belief (`recognition.belief`); default the
-        model's own."""
+        model's own. `recorder`: told every wrist goal, grasp (as observed, table contacts
+        dropped), belief, plan and skipped pose (`recordings.writer.SafeRecorder`)."""
         if cfg.max_moves < 1:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
@@ -188,6 +267,7 @@ class RecognitionSession:
         self._preshapes = training_preshapes(model)
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
+        self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
 
     def _mask_at_rest(self) -> list[int]:
@@ -291,33 +371,21 @@ class RecognitionSession:
         visited: list[int] = self._unreachable(res)
         self._travel_costs()
         ruled_out = set(visited)
-        counts = np.zeros(self.model.spec.n_bins)
+        belief = BeliefTracker(self.model, self._likelihood)
         state: PlanningState | None = None
         streak = 0
-        log_b = np.zeros(len(names))  # summed log p(grasp | y, pose) (grasp_likelihood)
+        rec = self.recorder
 
         def observe(pose_id: int, grasp: Grasp, pose: Pose) -> None:
-            nonlocal counts, state, streak, log_b
-            tris = self.model.triangles(grasp.xyz)
-            add = self.model.spec.counts(tris)
-            cells = self.model.observation.cells_of(tris)
-            counts = counts + add
+            nonlocal state, streak
             visited.append(pose_id)
-            if self._likelihood is None:
-                p = self.model.proba(counts)
-                # No triangle yet: p is uniform and its argmax (class 0) says nothing.
-                felt = bool(counts.any())
-            else:
-                model_l, params = self._likelihood
-                log_b = log_b + model_l.log_likelihood(grasp, pose, params)
-                p = softmax_belief(log_b)
-                felt = bool(np.ptp(p) > 1e-12)  # even an empty grasp may tell classes apart
+            p, felt, cells = belief.update(grasp, pose)
             state = PlanningState(
                 pose=pose_id,
                 visited=np.array(visited, dtype=np.int64),
-                counts=counts,
+                counts=belief.counts,
                 cells=cells,
-                log_belief=None if self._likelihood is None else log_b,
+                log_belief=belief.log_belief,
             )
             best = int(np.argmax(p))
             res.labels.append(names[best] if felt else NO_LABEL)
@@ -326,6 +394,24 @@ class RecognitionSession:
             res.contacts.append(hand_to_object(pose, grasp.xyz))
             self._clock(res, clock0)
             res.robot_s.append(res.total_s)
+            if rec is not None:
+                rec.grasp(
+                    len(res.labels),
+                    pose_id,
+                    self._poses[pose_id],
+                    grasp,
+                    p,
+                    res.labels[-1],
+                    felt,
+                    {
+                        "motion_s": res.motion_s,
+                        "grasp_s": res.grasp_s,
+                        "search_s": res.search_s,
+                        "motion_planning_s": res.motion_planning_s,
+                        "total_s": res.total_s,
+                        "elapsed_s": time.perf_counter() - t0,
+                    },
+                )
             # Consecutive confident grasps agreeing on the same top class.
             if p[best] < self.cfg.confidence or not felt:
                 streak = 0
@@ -347,10 +433,14 @@ class RecognitionSession:
                     )
                 )
 
-        def skip(pose_id: int) -> None:
+        def skip(pose_id: int, error: UnreachableError) -> None:
             nonlocal state
             visited.append(pose_id)
             res.skipped += 1
+            if rec is not None:
+                rec.error(
+                    len(res.labels), "skipped", str(error), type(error).__name__, pose_id=pose_id
+                )
             if state is not None:  # the arm stayed where it was
                 state = PlanningState(
                     pose=state.pose,
@@ -362,10 +452,12 @@ class RecognitionSession:
 
         def attempt(pose_id: int) -> bool:
             """Grasp at `pose_id`; an unreachable pose is skipped. True if it was grasped."""
+            if rec is not None:
+                rec.wrist_goal(len(res.labels) + 1, pose_id, self._poses[pose_id])
             try:
                 grasp, pose = self._grasp_at(pose_id)
-            except UnreachableError:
-                skip(pose_id)
+            except UnreachableError as e:
+                skip(pose_id, e)
                 return False
             observe(pose_id, grasp, pose)
             return True
@@ -400,6 +492,8 @@ class RecognitionSession:
                 break
             finally:
                 res.search_s += time.perf_counter() - tp
+            if rec is not None:
+                rec.plan(len(res.labels), plan_record(plan, time.perf_counter() - tp))
             if plan.exhausted:
                 res.stop_reason = "exhausted"
                 break
@@ -410,7 +504,7 @@ class RecognitionSession:
                     break
         if not res.stop_reason:
             res.stop_reason = "cancelled" if self.cancel.is_set() else "skips"
-        res.counts = counts
+        res.counts = belief.counts
         if res.labels:
             p = np.asarray(res.probabilities[-1])
             res.label = res.labels[-1]

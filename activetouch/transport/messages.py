@@ -306,6 +306,10 @@ class RecognizeRequest(Message, kw_only=True):
     # Chosen by the client so it can pick its own progress samples out; None: the daemon
     # makes one. Reported back in every Progress and in the result.
     session_id: Name | None = None
+    # False: the daemon writes no recording of this recognition (`recognize --no-record`);
+    # None: its `recording.enabled`. Added later: sent only when set, so a request without it
+    # still reaches a daemon from before it.
+    record: bool | None = None
 
 
 class Progress(Message, kw_only=True):
@@ -458,9 +462,21 @@ class _Versioned(msgspec.Struct):
 _VERSION_DECODER = msgspec.json.Decoder(_Versioned)
 
 
+# Optional fields added after a message shipped: left out of the JSON while None, so the
+# daemons and clients from before them (which refuse unknown fields) still read the message.
+_ADDED_LATER: dict[type, tuple[str, ...]] = {RecognizeRequest: ("record",)}
+
+
 def encode(msg: Message) -> bytes:
     """JSON bytes of `msg`."""
     try:
+        later = _ADDED_LATER.get(type(msg))
+        if later and any(getattr(msg, name) is None for name in later):
+            d = msgspec.to_builtins(msg, enc_hook=_enc_hook)
+            for name in later:
+                if d.get(name) is None:
+                    d.pop(name, None)
+            return _ENCODER.encode(d)
         return _ENCODER.encode(msg)
     except (TypeError, ValueError, OverflowError) as e:
         raise MessageError(f"cannot encode {type(msg).__name__}: {e}") from None

@@ -1,7 +1,8 @@
 """Opening Zenoh sessions from explicit settings, closed deterministically.
 
 Defaults are the safe ones: peer mode, multicast and gossip scouting off, listening only on
-``tcp/127.0.0.1:7447``. Nothing is discovered implicitly: peers find each other only through
+``tcp/127.0.0.1:7457`` (`DEFAULT_PORT`: not Zenoh's own 7447, which a ROS 2 robot's
+``rmw_zenohd`` router takes). Nothing is discovered implicitly: peers find each other only through
 the listen/connect endpoints given. A Zenoh JSON5 file (`config_file`, e.g. with TLS or access
 control) can be the starting point; the explicit settings are applied on top of it.
 
@@ -32,7 +33,8 @@ from activetouch.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-DEFAULT_PORT = 7447
+# Not 7447 (Zenoh's default, rmw_zenohd's tcp/[::]:7447) nor 7448 (a second router's usual).
+DEFAULT_PORT = 7457
 MODES = ("peer", "client")
 _ENDPOINT = re.compile(r"^[a-z][a-z0-9\-]*/\S+$")
 _HOST_PORT = re.compile(r"^(?P<host>\[[0-9A-Fa-f:.]+\]|[^:\[\]/]+):(?P<port>\d+)$")
@@ -45,11 +47,11 @@ def loopback_endpoint(port: int = DEFAULT_PORT) -> str:
 
 
 def validate_endpoint(endpoint: str) -> str:
-    """`endpoint` if it looks like a Zenoh locator (``tcp/127.0.0.1:7447``), else ConfigError."""
+    """`endpoint` if it looks like a Zenoh locator (``tcp/127.0.0.1:7457``), else ConfigError."""
     if not isinstance(endpoint, str) or not _ENDPOINT.fullmatch(endpoint):
         raise ConfigError(
             f"Zenoh endpoint {endpoint!r} is invalid: expected PROTOCOL/ADDRESS, "
-            "e.g. tcp/127.0.0.1:7447"
+            "e.g. tcp/127.0.0.1:7457"
         )
     proto, addr = endpoint.split("/", 1)
     if proto in ("tcp", "udp", "tls", "quic", "ws"):

@@ -257,7 +257,7 @@ def test_deploy_files_are_valid() -> None:
 
     cfg = load_config(DEPLOY / "activetouch.toml")  # every key known, every type right
     check_service_config(cfg.service)
-    assert cfg.service.listen == ["tcp/127.0.0.1:7447"]  # loopback unless told otherwise
+    assert cfg.service.listen == ["tcp/127.0.0.1:7457"]  # loopback, not rmw_zenohd's 7447
     conf = zenoh.Config.from_file(str(DEPLOY / "zenoh-tls-acl.json5"))  # Zenoh's own schema
     assert json.loads(conf.get_json("access_control/default_permission")) == "deny"
     unit = (DEPLOY / "activetouch.service").read_text()

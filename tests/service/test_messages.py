@@ -302,7 +302,7 @@ def test_keys() -> None:
 
 def test_zenoh_settings_are_explicit_and_local() -> None:
     s = ZenohSettings()
-    assert s.listen == ("tcp/127.0.0.1:7447",) and s.connect == ()
+    assert s.listen == ("tcp/127.0.0.1:7457",) and s.connect == ()
     conf = make_config(ZenohSettings.client("tcp/127.0.0.1:9000"))
     assert json.loads(conf.get_json("mode")) == "peer"
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
@@ -366,3 +366,15 @@ def test_robot_time_fields_are_optional_and_old_results_still_decode() -> None:
     with pytest.raises(MessageError, match="robot_seconds"):
         m.decode(b'{"v":1,"robot_seconds":1.0}', m.MotionStats)  # unknown field: a typo
     assert Keys("b").arm_motion_stats == "activetouch/b/arm/motion_stats"
+
+
+def test_the_record_field_is_sent_only_when_set() -> None:
+    """`RecognizeRequest.record` came later: a request without it encodes as before (a daemon
+    from before it, which refuses unknown fields, still reads it), and both forms decode."""
+    plain = m.RecognizeRequest(policy="tree", max_moves=2, object="cup")
+    assert b"record" not in m.encode(plain)
+    assert m.decode(m.encode(plain), m.RecognizeRequest) == plain
+    off = m.RecognizeRequest(policy="tree", max_moves=2, object="cup", record=False)
+    assert b'"record":false' in m.encode(off)
+    assert m.decode(m.encode(off), m.RecognizeRequest).record is False
+    assert m.decode(b'{"v":1,"policy":"tree","max_moves":2}', m.RecognizeRequest).record is None

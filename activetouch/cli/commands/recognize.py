@@ -17,11 +17,13 @@ from activetouch.config import Config, load_config
 from activetouch.errors import ActiveTouchError, ConfigError
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.policies import POLICY_NAMES
+from activetouch.recordings.writer import close_recorder
 from activetouch.session.local import (
     check_request,
     load_trained,
     model_path,
     recognize_in_twin,
+    result_record,
 )
 from activetouch.session.loop import Progress, RecognitionResult, display_label
 from activetouch.transport.messages import RecognizeRequest
@@ -49,7 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="append",
         default=None,
         help="recognise through the daemon at this Zenoh endpoint (repeatable), "
-        "e.g. tcp/127.0.0.1:7447",
+        "e.g. tcp/127.0.0.1:7457",
     )
     p.add_argument("--robot", default=None, help="robot name with --connect (service.robot)")
     p.add_argument(
@@ -63,6 +65,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="with --connect: let the recognition run on if this client goes away (by default "
         "the daemon cancels it when its requester is gone)",
+    )
+    p.add_argument(
+        "--no-record",
+        dest="record",
+        action="store_false",
+        help="write no recording of this recognition (default: recording.enabled, an MCAP file "
+        "under <data>/recordings/; with --connect the daemon is asked not to record)",
     )
     add_common_options(p)
     p.set_defaults(func=run)
@@ -136,17 +145,42 @@ def run(args: argparse.Namespace) -> int:
         f"recognising [bold]{args.object}[/] with the {policy} policy "
         f"({model.n_classes} known objects, seed {args.seed})"
     )
-    res = recognize_in_twin(
-        model,
-        library,
-        args.object,
-        policy,
-        args.seed,
-        cfg,
-        max_moves=args.max_moves,
-        on_progress=lambda ev: console.print(format_progress(ev), highlight=False),
-    )
+    recorder = None
+    if args.record:
+        from activetouch.daemon.client import new_session_id
+        from activetouch.recordings.writer import open_recorder
+
+        recorder = open_recorder(
+            root,
+            cfg,
+            session_id=new_session_id(),
+            source="recognize",
+            policy=policy,
+            max_moves=budget,
+            seed=args.seed,
+            object_name=args.object,
+            model=model,
+            model_dir=model_path(root, args.model),
+        )
+    try:
+        res = recognize_in_twin(
+            model,
+            library,
+            args.object,
+            policy,
+            args.seed,
+            cfg,
+            max_moves=args.max_moves,
+            on_progress=lambda ev: console.print(format_progress(ev), highlight=False),
+            recorder=recorder,
+        )
+    except BaseException as e:
+        close_recorder(recorder, root, cfg, error=e)
+        raise
+    recorded = close_recorder(recorder, root, cfg, result=result_record(res))
     _report(args, res, args.object, policy, args.seed, console)
+    if recorded is not None:  # with --json on stderr, beside the progress
+        console.print(f"recorded: {recorded}", highlight=False)
     return 0
 
 
@@ -207,6 +241,7 @@ def run_remote(args: argparse.Namespace, cfg: Config, policy: str, console: Cons
         seed=args.seed,
         object=args.object,
         session_id=new_session_id(),
+        record=None if args.record else False,
     )
     with open_client(
         args.connect, svc.robot, timeout=svc.node_timeout_s, zenoh_config=svc.zenoh_config or None

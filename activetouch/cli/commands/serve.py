@@ -2,7 +2,8 @@
 
 `activetouch recognize --connect ...` (commands/recognize.py) is the recognition client.
 Clients find the daemon at `--connect ENDPOINT` (repeatable), or else at the endpoints the
-daemon of the same configuration listens on (``service.listen``, default tcp/127.0.0.1:7447).
+daemon of the same configuration listens on (``service.listen``, default tcp/127.0.0.1:7457;
+with ``service.zenoh_mode = "client"`` the router it joined, ``service.connect``).
 """
 
 from __future__ import annotations
@@ -99,7 +100,7 @@ def _client_options(p: argparse.ArgumentParser, serving: bool) -> None:
             action="append",
             default=None,
             help="Zenoh endpoint to listen on (repeatable; default service.listen, "
-            "tcp/127.0.0.1:7447)",
+            "tcp/127.0.0.1:7457)",
         )
     p.add_argument(
         "--connect",
@@ -139,9 +140,17 @@ def service_config(args: argparse.Namespace) -> Config:
 
 
 def client_endpoints(args: argparse.Namespace, cfg: Config) -> list[str]:
-    """--connect, else the endpoints a daemon with this configuration listens on."""
+    """--connect, else the endpoints a daemon with this configuration listens on (in
+    ``service.zenoh_mode = "client"``: the router it joined, ``service.connect``)."""
     if args.connect:
         return list(args.connect)
+    if cfg.service.zenoh_mode == "client":
+        if cfg.service.connect:
+            return list(cfg.service.connect)
+        raise ConfigError(
+            "service.zenoh_mode=client: the daemon is reached through its router; set "
+            "service.connect or give --connect ENDPOINT"
+        )
     eps = [e for e in cfg.service.listen if not e.endswith(":0")]  # port 0: not knowable
     if not eps:
         raise ConfigError("no endpoint to reach the daemon: give --connect ENDPOINT")
