@@ -158,6 +158,11 @@ class RecognitionService:
         self._estop_q: queue.SimpleQueue = queue.SimpleQueue()
         self._queryables: list[Any] = []
         self._token: Any = None
+        # Told what each recognition does (the ROS 2 face): objects with any of
+        # on_start(session_id, placement), on_grasp(session_id, grasp) and
+        # on_result(session_id, result | None, error | None), called on the runner thread;
+        # they must only hand the news over, never block.
+        self.observers: list[Any] = []
         if links is None:
             if session is None:
                 raise ValueError("a RecognitionService needs a Zenoh session or its links")
@@ -247,6 +252,16 @@ class RecognitionService:
             self.submit(key, query)
 
         return on_query
+
+    def _notify(self, event: str, *args: Any) -> None:
+        for obs in list(self.observers):
+            fn = getattr(obs, event, None)
+            if fn is None:
+                continue
+            try:
+                fn(*args)
+            except Exception:
+                log.warning("an observer failed", extra={"event": event}, exc_info=True)
 
     # -- control thread: status, cancel, admission of recognize
     def _control_loop(self) -> None:
@@ -534,6 +549,7 @@ class RecognitionService:
                 error = e
             # Done before the caller hears of it: a status it asks next shows no session.
             self._finish(running)
+            self._notify("on_result", job.session_id, result, error)
             if result is not None:
                 try:
                     query.reply(self.keys.recognize, encode(Reply.success(result)), encoding=JSON)
@@ -626,6 +642,7 @@ class RecognitionService:
                 ),
             )
         support_z = placement.support_z(wc.table_top_z)
+        self._notify("on_start", sid, placement)
         # A new recognition is the operator's go-ahead after a stop (see the module).
         running.interlock.check("starting")
         self.hand.clear_stop()
@@ -673,7 +690,9 @@ class RecognitionService:
                     log.warning("publishing progress failed", extra={"error": str(e)})
 
         session = RecognitionSession(
-            GuardedHand(self.hand, running.interlock),
+            GuardedHand(
+                self.hand, running.interlock, lambda grasp: self._notify("on_grasp", sid, grasp)
+            ),
             GuardedWrist(self.arm, running.interlock),
             model,
             policy,
