@@ -94,7 +94,7 @@ class Reply:
 
 
 @dataclass
-class TestRosClient:
+class RosTestClient:
     """Node ``/test_client`` of ROS 2 domain 0, connected to one loopback endpoint."""
 
     endpoint: str
@@ -105,7 +105,7 @@ class TestRosClient:
     _seq: int = 0
     gid: bytes = field(default_factory=lambda: os.urandom(16))
 
-    def __enter__(self) -> TestRosClient:
+    def __enter__(self) -> RosTestClient:
         conf = zenoh.Config()
         for k, v in (
             ("mode", "peer"),
