@@ -99,6 +99,7 @@ class RosTestClient:
 
     endpoint: str
     node: str = "test_client"
+    domain: int = DOMAIN
     session: Any = None
     _tokens: list = field(default_factory=list)
     _subs: list = field(default_factory=list)
@@ -117,7 +118,7 @@ class RosTestClient:
             conf.insert_json5(k, json.dumps(v))
         self.session = zenoh.open(conf)
         self.zid = str(self.session.zid())
-        self._declare(f"@ros2_lv/{DOMAIN}/{self.zid}/0/0/NN/%/%/{self.node}")
+        self._declare(f"@ros2_lv/{self.domain}/{self.zid}/0/0/NN/%/%/{self.node}")
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -130,7 +131,7 @@ class RosTestClient:
         self._tokens.append(self.session.liveliness().declare_token(key))
 
     def graph(self, timeout: float = 10.0) -> list[Token]:
-        replies = self.session.liveliness().get(f"@ros2_lv/{DOMAIN}/**", timeout=timeout)
+        replies = self.session.liveliness().get(f"@ros2_lv/{self.domain}/**", timeout=timeout)
         out = []
         for r in replies:
             if r.ok is not None:
@@ -155,7 +156,7 @@ class RosTestClient:
                 found.put(tok)
 
         sub = self.session.liveliness().declare_subscriber(
-            f"@ros2_lv/{DOMAIN}/**", on_token, history=True
+            f"@ros2_lv/{self.domain}/**", on_token, history=True
         )
         try:
             return found.get(timeout=timeout)
@@ -175,13 +176,14 @@ class RosTestClient:
         self._seq += 1
         eid = 100 + self._seq
         self._declare(
-            f"@ros2_lv/{DOMAIN}/{self.zid}/0/{eid}/SC/%/%/{self.node}/{name.replace('/', '%')}/"
+            f"@ros2_lv/{self.domain}/{self.zid}/0/{eid}/SC/%/%/{self.node}/"
+            f"{name.replace('/', '%')}/"
             f"{wire_type(type_name)}/{type_hash}/::,10:,:,:,,"
         )
         att = (make_legacy_attachment if legacy else make_attachment)(self._seq, self.gid)
         out = []
         for r in self.session.get(
-            key_of(name, type_name, type_hash),
+            key_of(name, type_name, type_hash, self.domain),
             payload=request,
             attachment=att,
             target=zenoh.QueryTarget.ALL_COMPLETE,
@@ -195,10 +197,11 @@ class RosTestClient:
     def subscribe(self, name: str, type_name: str, type_hash: str) -> queue.SimpleQueue:
         """Samples of a topic, as (payload, attachment) pairs, in a queue."""
         q: queue.SimpleQueue = queue.SimpleQueue()
-        key = key_of(name, type_name, type_hash)
+        key = key_of(name, type_name, type_hash, self.domain)
         eid = 500 + len(self._subs)
         self._declare(
-            f"@ros2_lv/{DOMAIN}/{self.zid}/0/{eid}/MS/%/%/{self.node}/{name.replace('/', '%')}/"
+            f"@ros2_lv/{self.domain}/{self.zid}/0/{eid}/MS/%/%/{self.node}/"
+            f"{name.replace('/', '%')}/"
             f"{wire_type(type_name)}/{type_hash}/::,10:,:,:,,"
         )
 

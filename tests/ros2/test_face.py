@@ -185,3 +185,22 @@ def test_the_face_is_off_by_default(start_fake_daemon) -> None:
     assert daemon.ros2 is None
     with RosTestClient(ep) as client:
         assert not [t for t in client.graph(timeout=2.0) if t.node == "activetouch"]
+
+
+def test_domain_and_namespace(start_fake_daemon, store) -> None:
+    _daemon, ep = start_fake_daemon(["ros2.enabled=true", "ros2.domain_id=7",
+                                     "ros2.namespace=/lab/cell1"])  # fmt: skip
+    with RosTestClient(ep, domain=7) as client:
+        tok = client.wait_for_service("/lab/cell1/activetouch/status", TRIGGER)
+        assert tok.namespace == "/lab/cell1" and tok.node == "activetouch"
+        names = {t.name for t in client.graph() if t.node == "activetouch" and t.kind == "MP"}
+        assert {"/lab/cell1/joint_states", "/tf", "/lab/cell1/activetouch/result"} <= names
+        resp = _one(
+            client.call("/lab/cell1/activetouch/status", TRIGGER, TRIGGER_HASH, _trigger(store)),
+            client,
+            store,
+            f"{TRIGGER}_Response",
+        )
+        assert resp.success
+    with RosTestClient(ep) as other:  # domain 0 sees nothing of it
+        assert not [t for t in other.graph(timeout=2.0) if t.node == "activetouch"]
