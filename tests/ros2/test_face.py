@@ -134,6 +134,17 @@ def test_recognize_over_ros2_sends_contacts_and_result(face, store) -> None:
             "activetouch_interfaces/msg/RecognitionResult",
             rihs01("activetouch_interfaces/msg/RecognitionResult"),
         )
+        progress = client.subscribe(
+            "/activetouch/progress",
+            "activetouch_interfaces/msg/Progress",
+            rihs01("activetouch_interfaces/msg/Progress"),
+        )
+        tf = client.subscribe("/tf", "tf2_msgs/msg/TFMessage", rihs01("tf2_msgs/msg/TFMessage"))
+        tactile = client.subscribe(
+            "/activetouch/tactile",
+            "activetouch_interfaces/msg/Tactile",
+            rihs01("activetouch_interfaces/msg/Tactile"),
+        )
         req = _recognize(store, policy="random", max_moves=2, seed=0, object="cup",
                          session_id="ros-1")  # fmt: skip
         resp = _one(client.call("/activetouch/recognize", RECOGNIZE, h, req), client, store,
@@ -153,6 +164,22 @@ def test_recognize_over_ros2_sends_contacts_and_result(face, store) -> None:
         assert published.session_id == "ros-1" and list(published.labels) == list(r.labels)
         with pytest.raises(queue.Empty):
             contacts.get_nowait()  # two grasps, two clouds
+        for move in (1, 2):
+            p = store.deserialize_cdr(progress.get(timeout=30.0)[0],
+                                      "activetouch_interfaces/msg/Progress")  # fmt: skip
+            assert p.session_id == "ros-1" and p.move == move and p.has_pose
+            assert p.header.frame_id == "object"
+            assert len(p.top_labels) == len(p.top_probabilities) <= 3
+            frames = store.deserialize_cdr(tf.get(timeout=30.0)[0], "tf2_msgs/msg/TFMessage")
+            pairs = [(t.header.frame_id, t.child_frame_id) for t in frames.transforms]
+            assert pairs == [("base", "object"), ("object", "hand")]
+            wrist = frames.transforms[1].transform.translation
+            assert (wrist.x, wrist.y, wrist.z) == (p.pose.position.x, p.pose.position.y,
+                                                   p.pose.position.z)  # fmt: skip
+        hand = store.deserialize_cdr(tactile.get(timeout=30.0)[0],
+                                     "activetouch_interfaces/msg/Tactile")  # fmt: skip
+        assert len(hand.pressures) == 38 and len(hand.contact) == 38
+        assert hand.header.frame_id == "hand"
 
 
 def test_recognize_is_admitted_as_the_zenoh_api_admits_it(face, store) -> None:
