@@ -231,3 +231,42 @@ def test_domain_and_namespace(start_fake_daemon, store) -> None:
         assert resp.success
     with RosTestClient(ep) as other:  # domain 0 sees nothing of it
         assert not [t for t in other.graph(timeout=2.0) if t.node == "activetouch"]
+
+
+def test_cancel_over_ros2_ends_the_running_recognition(start_fake_daemon, store) -> None:
+    import threading
+
+    _daemon, ep = start_fake_daemon(
+        ["ros2.enabled=true", "hand.close_s=0.3", "session.stable_grasps=1000"]
+    )
+    h = rihs01(RECOGNIZE)
+    out: dict = {}
+    with RosTestClient(ep) as runner, RosTestClient(ep, node="operator") as op:
+        runner.wait_for_service("/activetouch/recognize", RECOGNIZE)
+        op.wait_for_service("/activetouch/cancel", TRIGGER)
+        progress = op.subscribe(
+            "/activetouch/progress",
+            "activetouch_interfaces/msg/Progress",
+            rihs01("activetouch_interfaces/msg/Progress"),
+        )
+        req = _recognize(store, policy="random", max_moves=50, seed=0, object="cup")
+
+        def run() -> None:
+            out["replies"] = runner.call("/activetouch/recognize", RECOGNIZE, h, req)
+
+        t = threading.Thread(target=run)
+        t.start()
+        try:
+            progress.get(timeout=30.0)  # it runs
+            resp = _one(
+                op.call("/activetouch/cancel", TRIGGER, TRIGGER_HASH, _trigger(store)),
+                op,
+                store,
+                f"{TRIGGER}_Response",
+            )
+        finally:
+            t.join(60.0)
+        assert resp.success and json.loads(resp.message)["cancelled"] is True
+        rec = _one(out["replies"], runner, store, f"{RECOGNIZE}_Response")
+        assert rec.success and rec.result.stop_reason == "cancelled"
+        assert rec.result.moves < 50
