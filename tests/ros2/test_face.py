@@ -270,3 +270,13 @@ def test_cancel_over_ros2_ends_the_running_recognition(start_fake_daemon, store)
         rec = _one(out["replies"], runner, store, f"{RECOGNIZE}_Response")
         assert rec.success and rec.result.stop_reason == "cancelled"
         assert rec.result.moves < 50
+
+
+def test_legacy_setting_labels_the_publications(start_fake_daemon) -> None:
+    _daemon, ep = start_fake_daemon(["ros2.enabled=true", "ros2.attachment=legacy"])
+    with RosTestClient(ep) as client:
+        client.wait_for_service("/activetouch/status", TRIGGER)
+        joints = client.subscribe("/joint_states", JOINT_STATE, rihs01(JOINT_STATE))
+        _payload, attachment = joints.get(timeout=30.0)
+    assert attachment is not None and attachment.startswith(b"\x0fsequence_number")
+    assert b"\x10source_timestamp" in attachment and b"\x0asource_gid\x10" in attachment

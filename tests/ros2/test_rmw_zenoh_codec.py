@@ -96,3 +96,12 @@ def test_ros2_is_off_by_default() -> None:
     cfg = load_config(None)
     assert cfg.ros2.enabled is False and cfg.ros2.attachment == "gid"
     assert cfg.ros2.domain_id == 0 and cfg.ros2.namespace == ""
+
+
+def test_the_face_needs_the_daemon_role(tmp_path) -> None:
+    from activetouch.daemon.process import DaemonOptions
+
+    cfg = load_config(None, ["ros2.enabled=true", "hand.type=fake", "arm.type=fake"])
+    with pytest.raises(ConfigError, match=r"ros2\.enabled: .*--role all or --role daemon"):
+        DaemonOptions(mode="sim", role="nodes", data=tmp_path, model_dir=tmp_path, cfg=cfg)
+    DaemonOptions(mode="sim", role="daemon", data=tmp_path, model_dir=tmp_path, cfg=cfg)
