@@ -13,24 +13,12 @@ import pytest
 
 from tests.conftest import FAKE_ROBOT
 from tests.ros2.client import TRIGGER_HASH, RosTestClient, read_attachment
-from tests.ros2.hashes import file_defs, rihs01, srv_defs
+from tests.ros2.hashes import rihs01
 
 TRIGGER = "std_srvs/srv/Trigger"
 RECOGNIZE = "activetouch_interfaces/srv/Recognize"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 CLOUD = "sensor_msgs/msg/PointCloud2"
-
-
-@pytest.fixture(scope="module")
-def store() -> Any:
-    """rosbags' Jazzy store with Trigger and activetouch_interfaces, from the files."""
-    from rosbags.typesys import Stores, get_typestore
-
-    ts = get_typestore(Stores.ROS2_JAZZY)
-    defs = srv_defs("std_srvs", "Trigger", "---\nbool success\nstring message\n")
-    defs.update(file_defs())
-    ts.register({k: v for k, v in defs.items() if k not in ts.fielddefs})
-    return ts
 
 
 @pytest.fixture
