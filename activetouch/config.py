@@ -11,6 +11,7 @@ import dataclasses
 import logging
 import math
 import os
+import re
 import tomllib
 import typing
 from dataclasses import dataclass, field
@@ -36,6 +37,7 @@ MovementCost = Literal["pose", "travel_time"]
 GridLayout = Literal["shared", "per_object"]
 Sensing = Literal["tactile", "stall"]
 ZenohMode = Literal["peer", "client"]
+Ros2Attachment = Literal["gid", "legacy"]
 
 
 @dataclass
@@ -293,6 +295,44 @@ class RecordingConfig:
                 raise ConfigError(f"recording.{name} must be >= 0 (0: no limit), got {v}")
 
 
+class Ros2Config:
+    """The daemon's ROS 2 face over rmw_zenoh (activetouch/daemon/ros2_face.py, docs/api.md
+    "ROS 2"): node ``<namespace>/activetouch`` on the daemon's own Zenoh session. Off by default."""
+
+    enabled: bool = False
+    domain_id: int = 0  # ROS_DOMAIN_ID of the ROS 2 graph to appear in (0-232)
+    namespace: str = ""  # "" (the root) or "/name[/name...]": node <namespace>/activetouch
+    # The rmw_zenoh attachment every request, reply and sample carries: "gid" (int64 sequence
+    # number, int64 timestamp, length 16, 16-byte GID: 33 bytes; rmw_zenoh Jazzy >= 0.2.4,
+    # Rolling >= 0.6.0) or "legacy" (the same values as labelled entries: older releases).
+    # Requests are answered in the format they came in; this picks what the face sends first.
+    attachment: Ros2Attachment = "gid"
+    # TF frame ids: the robot base, the object frame (the workcell's placement), the hand.
+    base_frame: str = "base"
+    object_frame: str = "object"
+    hand_frame: str = "hand"
+
+    def check(self) -> None:
+        if not 0 <= self.domain_id <= 232:
+            raise ConfigError(f"ros2.domain_id must be 0-232 (ROS_DOMAIN_ID), got {self.domain_id}")
+        ns = self.namespace
+        if ns and not _ROS_NAMESPACE.fullmatch(ns):
+            raise ConfigError(
+                f'ros2.namespace {ns!r} is invalid: use "" or "/name[/name...]" with '
+                "names of letters, digits and '_' (not starting with a digit), no trailing '/'"
+            )
+        for name in ("base_frame", "object_frame", "hand_frame"):
+            v = getattr(self, name)
+            if not _ROS_FRAME.fullmatch(v):
+                raise ConfigError(
+                    f"ros2.{name} {v!r} is invalid: use 1-200 letters, digits, '_', '/', '.', '-'"
+                )
+
+
+_ROS_NAMESPACE = re.compile(r"^(/[A-Za-z_][A-Za-z0-9_]{0,62})+$")
+_ROS_FRAME = re.compile(r"^[A-Za-z0-9_./\-]{1,200}$")
+
+
 @dataclass
 class WorkcellConfig:
     """Where things are, in the robot base frame (x forward, z up), metres. The same on every
@@ -336,6 +376,7 @@ class Config:
     service: ServiceConfig = field(default_factory=ServiceConfig)
     workcell: WorkcellConfig = field(default_factory=WorkcellConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
+    ros2: Ros2Config = field(default_factory=Ros2Config)
     # Devices: `type` picks the device type (activetouch.device_types), the rest its settings.
     hand: Any = field(default_factory=lambda: _default_device("hand"))
     arm: Any = field(default_factory=lambda: _default_device("arm"))
@@ -396,6 +437,7 @@ def load_config(
     default_workcell(cfg)
     cfg.workcell.check()
     cfg.recording.check()
+    cfg.ros2.check()
     return cfg
 
 

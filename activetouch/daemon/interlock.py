@@ -3,6 +3,8 @@ arm command of that recognition is refused, so it ends at once whatever it was d
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from activetouch.daemon.client import RecognitionAbortedError
 from activetouch.interfaces import Grasp, Hand, HandWrapper, Pose
 from activetouch.planning.motion.base import WristMotion
@@ -27,9 +29,15 @@ class GuardedHand(HandWrapper):
     """The hand as one recognition uses it: motions refused once its interlock trips. It
     neither connects nor disconnects the hand (the service does not own it)."""
 
-    def __init__(self, hand: Hand, interlock: Interlock) -> None:
+    def __init__(
+        self,
+        hand: Hand,
+        interlock: Interlock,
+        on_grasp: Callable[[Grasp], None] | None = None,
+    ) -> None:
         super().__init__(hand)
         self.interlock = interlock
+        self.on_grasp = on_grasp  # told of every grasp (the service's observers)
 
     def connect(self) -> None:
         pass
@@ -47,7 +55,10 @@ class GuardedHand(HandWrapper):
 
     def guarded_close(self) -> Grasp:
         self.interlock.check("grasp")
-        return self.inner.guarded_close()
+        grasp = self.inner.guarded_close()
+        if self.on_grasp is not None:
+            self.on_grasp(grasp)
+        return grasp
 
 
 class GuardedWrist(WristMotion):

@@ -152,6 +152,11 @@ class DaemonOptions:
         if self.role not in ROLES:
             raise ConfigError(f"role {self.role!r} is invalid: use one of {', '.join(ROLES)}")
         check_service_config(self.cfg.service)
+        if self.cfg.ros2.enabled and self.role == "nodes":
+            raise ConfigError(
+                "ros2.enabled: the ROS 2 face is the recognition service's; run it with "
+                "--role all or --role daemon (this process serves only the nodes)"
+            )
         if self.role != "daemon":
             hand, arm = self.cfg.hand, self.cfg.arm
             simulated = hand.simulated and arm.simulated
@@ -178,6 +183,7 @@ class Daemon:
         self.devices: Any = None
         self.nodes: DeviceNodes | None = None
         self.service: RecognitionService | None = None
+        self.ros2: Any = None  # the ROS 2 face (ros2_face.Ros2Face) with [ros2] enabled
 
     def start(self) -> None:
         opts, svc = self.opts, self.opts.cfg.service
@@ -220,6 +226,11 @@ class Daemon:
                     self.zs.session, svc.robot, opts.mode, opts.cfg, opts.model_dir, opts.data
                 )
                 self.service.start(svc.node_wait_s)
+                if opts.cfg.ros2.enabled:
+                    from activetouch.daemon.ros2_face import Ros2Face
+
+                    self.ros2 = Ros2Face(self.zs.session, self.service, opts.cfg)
+                    self.ros2.start()
         except BaseException:
             self.close()
             raise
@@ -230,6 +241,9 @@ class Daemon:
         )
 
     def close(self) -> None:
+        if self.ros2 is not None:
+            self.ros2.close()
+            self.ros2 = None
         if self.service is not None:
             self.service.close()
             self.service = None

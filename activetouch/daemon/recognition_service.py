@@ -191,6 +191,11 @@ class RecognitionService:
         self._closing = False
         self._closed = False
         self._close_reason = ""
+        # Told what each recognition does (the ROS 2 face): objects with any of
+        # on_start(session_id, placement), on_grasp(session_id, grasp) and
+        # on_result(session_id, result | None, error | None), called on the runner thread;
+        # they must only hand the news over, never block.
+        self.observers: list[Any] = []
         if links is None:
             if session is None:
                 raise ValueError("a RecognitionService needs a Zenoh session or its links")
@@ -266,6 +271,16 @@ class RecognitionService:
     def submit(self, key: str, query: Any) -> None:
         """Take a query on one of the daemon's keys (the e-stop on its own thread)."""
         self.node.submit(key, query)
+
+    def _notify(self, event: str, *args: Any) -> None:
+        for obs in list(self.observers):
+            fn = getattr(obs, event, None)
+            if fn is None:
+                continue
+            try:
+                fn(*args)
+            except Exception:
+                log.warning("an observer failed", extra={"event": event}, exc_info=True)
 
     def _expire_queued(self) -> None:
         """Answer queued requests whose caller's timeout has passed now, not when they reach
@@ -522,6 +537,7 @@ class RecognitionService:
                 error = e
             # Done before the caller hears of it: a status it asks next shows no session.
             self._finish(running)
+            self._notify("on_result", job.session_id, result, error)
             if result is not None:
                 try:
                     query.reply(self.keys.recognize, encode(Reply.success(result)), encoding=JSON)
@@ -610,6 +626,7 @@ class RecognitionService:
                 ),
             )
         support_z = placement.support_z(wc.table_top_z)
+        self._notify("on_start", running.job.session_id, placement)
         recorder = self._open_recorder(running, placement)
         try:
             result = self._run_session(running, model, support_z, recorder)
@@ -705,7 +722,9 @@ class RecognitionService:
                     log.warning("publishing progress failed", extra={"error": str(e)})
 
         session = RecognitionSession(
-            GuardedHand(self.hand, running.interlock),
+            GuardedHand(
+                self.hand, running.interlock, lambda grasp: self._notify("on_grasp", sid, grasp)
+            ),
             GuardedWrist(self.arm, running.interlock),
             model,
             policy,

@@ -355,3 +355,77 @@ def test_daemon_over_mutual_tls_obeys_the_roles(pki: Path, tls_daemon: str) -> N
         # Node keys stay out of reach for the operator too.
         assert not _answers(op._session, KEYS.arm_joint_state, timeout=1.0)
         assert not _answers(op._session, KEYS.hand_state, timeout=1.0)
+
+
+# --------------------------------------------------------------------------- the ROS 2 face
+
+
+class _AnsweringService:
+    """Stands in for the recognition service behind a real `Ros2Face`: answers every request."""
+
+    keys = KEYS
+
+    def __init__(self) -> None:
+        self.observers: list = []
+
+    def submit(self, key: str, query: object) -> None:
+        from activetouch.transport.messages import EStopResult, Reply, encode
+
+        with query:  # type: ignore[attr-defined]
+            query.reply(key, encode(Reply.success(EStopResult(arm_stopped=True, hand_opened=True))))  # type: ignore[attr-defined]
+
+
+def _ros2_probe(client: zenoh.Session, face: object, daemon: zenoh.Session) -> dict[str, object]:
+    import os
+    import struct
+
+    from activetouch.transport.messages import JointStateMsg, encode
+
+    answered = set()
+    for name, ep in face.services.items():  # type: ignore[attr-defined]
+        att = struct.pack("<qq", 1, time.time_ns()) + b"\x10" + os.urandom(16)
+        for r in client.get(ep.key, payload=b"\x00\x01\x00\x00\x00", attachment=att,
+                            target=zenoh.QueryTarget.ALL_COMPLETE, timeout=2.0):  # fmt: skip
+            if r.ok is not None and r.ok.attachment is not None:
+                answered.add(name)
+    tokens = [
+        str(r.ok.key_expr)
+        for r in client.liveliness().get("@ros2_lv/0/**", timeout=2.0)
+        if r.ok is not None
+    ]
+    got: list[bytes] = []
+    sub = client.declare_subscriber(
+        face.topics["joint_states"].key,  # type: ignore[attr-defined]
+        lambda s: got.append(s.payload.to_bytes()),
+    )
+    deadline = time.monotonic() + 1.0
+    while not got and time.monotonic() < deadline:
+        daemon.put(KEYS.arm_joint_states, encode(JointStateMsg(names=["s0"], position=[0.1])))
+        time.sleep(0.05)
+    sub.undeclare()
+    return {"answered": answered, "graph": bool(tokens), "joint_states": bool(got)}
+
+
+def test_ros2_face_keys_obey_the_roles(pki: Path) -> None:
+    """The real ROS 2 face on a session with the shipped daemon file: operators may call all
+    four services and see the graph and the topics, monitors only status and the rest of it,
+    a stranger nothing."""
+    from activetouch.config import load_config
+    from activetouch.daemon.ros2_face import Ros2Face
+
+    endpoint = loopback_endpoint("tls")
+    with _session(fill(pki, "daemon"), listen=endpoint) as zs:
+        face = Ros2Face(zs.session, _AnsweringService(), load_config(None, ["ros2.enabled=true"]))
+        zs.closing(face)
+        face.start()
+        got = {}
+        for role in ("operator", "monitor", "stranger"):
+            with _session(fill(pki, role), connect=endpoint) as client:
+                got[role] = _ros2_probe(client.session, face, zs.session)
+    assert got["operator"] == {
+        "answered": {"recognize", "cancel", "estop", "status"},
+        "graph": True,
+        "joint_states": True,
+    }
+    assert got["monitor"] == {"answered": {"status"}, "graph": True, "joint_states": True}
+    assert got["stranger"] == {"answered": set(), "graph": False, "joint_states": False}
