@@ -295,6 +295,7 @@ class RecordingConfig:
                 raise ConfigError(f"recording.{name} must be >= 0 (0: no limit), got {v}")
 
 
+@dataclass
 class Ros2Config:
     """The daemon's ROS 2 face over rmw_zenoh (activetouch/daemon/ros2_face.py, docs/api.md
     "ROS 2"): node ``<namespace>/activetouch`` on the daemon's own Zenoh session. Off by default."""
