@@ -36,6 +36,9 @@ def driver_config(
     kw.setdefault("motor_zero_points", zero_points(kw.pop("motor_zero_rad", MOTOR_ZERO)))
     kw.setdefault("encoder_zero_rad", list(ENCODER_ZERO))
     kw.setdefault("mode_switch_sleep_s", 0.005)
+    # The driver's 0.2 s suits a board sending at 40 Hz; on a loaded 2-core machine the
+    # emulator's thread can be held longer than that (a full run beside other work did).
+    kw.setdefault("stream_timeout_s", 0.6)
     return ReflexTakktileConfig(
         type="reflex-takktile",
         state_listen=f"127.0.0.1:{state_port}",

