@@ -102,6 +102,8 @@ def test_too_few_samples_refused():
 
 
 def _driver(state_port, command_port, **kw):
+    # 0.6 s, not the driver's 0.2 s: a loaded 2-core machine can hold the emulator's thread.
+    kw.setdefault("stream_timeout_s", 0.6)
     cfg = ReflexTakktileConfig(
         type="reflex-takktile",
         state_listen=f"127.0.0.1:{state_port}",

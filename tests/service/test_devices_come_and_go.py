@@ -57,6 +57,7 @@ def test_the_daemon_waits_for_a_late_bridge_and_follows_it_going_and_coming(
     assert cfg.arm.bridge_format == "auto" and cfg.arm.connect_timeout_s == 5.0  # defaults
     opts = DaemonOptions("hardware", "all", tmp_path, tmp_path / "no-model", cfg)
     daemon = Daemon(opts)
+    started = time.monotonic()
     daemon.start()  # before: ConfigError / NodeUnavailableError "no joint state ... within 5 s"
     try:
         st = wait_status(
@@ -69,6 +70,8 @@ def test_the_daemon_waits_for_a_late_bridge_and_follows_it_going_and_coming(
         waiting_since = st.nodes["arm"].since
         assert waiting_since is not None and waiting_since <= time.time()
 
+        # The probe: the bridge comes up 8 s after the daemon started.
+        time.sleep(max(0.0, 8.0 - (time.monotonic() - started)))
         with ZenohSession(ZenohSettings(listen=(bridge,))) as zs:
             robot = BaxterEmulator(zs.session, EmulatorSettings(enabled=True, legacy=True))
             try:

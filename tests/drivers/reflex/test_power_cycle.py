@@ -57,7 +57,12 @@ def test_a_power_cycled_hand_is_lost_then_reconnected_without_moving(ports) -> N
         emu = board(*ports)  # power on: a board that comes back in IDLE
         wait_state(link, "connected")
         assert not hand.state().stale
-        assert emu.position_switches() == 1  # re-armed once, on the board that came back
+        # Re-armed once, on the board that came back (its thread may take the command late).
+        deadline = time.monotonic() + WAIT_S
+        while emu.position_switches() < 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.2)  # a second, wrong switch would arrive meanwhile
+        assert emu.position_switches() == 1
         spool, preshape = emu.joint_state()
         time.sleep(0.2)  # the reconnection commanded no motion: the fingers stay where they are
         after, preshape_after = emu.joint_state()
