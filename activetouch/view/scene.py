@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable, Sequence
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +48,7 @@ PAST_CONTACT_COLOUR = (240, 160, 60, 255)
 GOAL_COLOUR = (60, 120, 230, 255)
 PALM_HALF_SIZES = (0.045, 0.035, 0.012)  # a ReFlex palm, roughly (hand frame, metres)
 AXIS_LENGTH = 0.06
+EYE_OFFSET = np.array([0.55, -0.45, 0.40])  # the camera, from the object (metres)
 
 _UNSAFE = re.compile(r"[^A-Za-z0-9_.\-]")
 
@@ -90,18 +92,33 @@ class _Session:
     shape_logged: bool = False
 
 
-def blueprint() -> rrb.Blueprint:
-    """The viewer's layout: the 3-D scene beside the belief (time series, bars) and status."""
+def blueprint(workcell: WorkcellConfig | None = None) -> rrb.Blueprint:
+    """The viewer's layout: the 3-D scene beside the belief (time series, bars) and status;
+    the camera on the object (where [workcell] puts it), the `grasp` timeline selected."""
+    view3d: dict[str, Any] = {"origin": "world", "name": "workcell"}
+    extra: list[Any] = []
+    with suppress(AttributeError, TypeError):  # newer Rerun only: keep the default otherwise
+        target = np.asarray((workcell or WorkcellConfig()).object_xyz, dtype=np.float64)
+        view3d["eye_controls"] = rrb.EyeControls3D(
+            position=(target + EYE_OFFSET).tolist(), look_target=target.tolist()
+        )
+    with suppress(AttributeError, TypeError):
+        extra.append(rrb.TimePanel(timeline="grasp", state="collapsed"))
+    try:
+        view = rrb.Spatial3DView(**view3d)
+    except TypeError:
+        view = rrb.Spatial3DView(origin="world", name="workcell")
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(origin="world", name="workcell"),
+            view,
             rrb.Vertical(
                 rrb.TimeSeriesView(origin="belief", name="belief per class"),
-                rrb.BarChartView(origin="belief_bars", name="belief now"),
+                rrb.BarChartView(origin="belief_bars", name="belief now (model's class order)"),
                 rrb.TextDocumentView(origin="status", name="status"),
             ),
             column_shares=[3, 2],
         ),
+        *extra,
         collapse_panels=True,
     )
 
@@ -134,7 +151,7 @@ class SceneLogger:
             return
         self._started = True
         if self._send_blueprint and hasattr(self.rec, "send_blueprint"):
-            self.rec.send_blueprint(blueprint())
+            self.rec.send_blueprint(blueprint(self.workcell))
         self.rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         wc = self.workcell
         self.rec.log(
@@ -144,7 +161,6 @@ class SceneLogger:
                 half_sizes=[[float(s) / 2 for s in wc.table_size]],
                 colors=[TABLE_COLOUR],
                 fill_mode="solid",
-                labels=["table"],
             ),
             static=True,
         )
@@ -274,7 +290,6 @@ class SceneLogger:
                 centers=[[0.0, 0.0, -PALM_HALF_SIZES[2]]],
                 colors=[HAND_COLOUR],
                 fill_mode="solid",
-                labels=["hand"],
             ),
         )
         self.rec.log(
