@@ -103,7 +103,10 @@ class _WebSocket:
 
 
 class Browser:
-    """A headless Chromium showing `url`, with DevTools calls `call` and `screenshot`."""
+    """A headless Chromium showing `url`, with DevTools calls `call` and `screenshot`. Every
+    address the page asked for is in `requested` (request id -> URL, from the Network domain)
+    and why a request was blocked before it left in `blocked` (request id -> reason, e.g.
+    "csp")."""
 
     def __init__(self, url: str, width: int = 1280, height: int = 800, timeout: float = 120.0):
         exe = chromium_path()
@@ -128,16 +131,20 @@ class Browser:
                 "--remote-debugging-port=0",
                 f"--user-data-dir={self.profile}",
                 f"--window-size={width},{height}",
-                url,
+                "about:blank",
             ],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
         )
         self._id = 0
+        self.requested: dict[str, str] = {}
+        self.blocked: dict[str, str] = {}
         try:
             port = self._devtools_port(timeout)
             self.ws = _WebSocket(self._page_ws(port, timeout), timeout)
+            self.call("Network.enable")
+            self.call("Page.navigate", url=url)
         except BaseException:
             self.close()
             raise
@@ -171,6 +178,11 @@ class Browser:
         self.ws.send(json.dumps({"id": mid, "method": method, "params": params}))
         while True:
             msg = json.loads(self.ws.recv())
+            event, params = msg.get("method"), msg.get("params", {})
+            if event == "Network.requestWillBeSent":
+                self.requested[params["requestId"]] = str(params["request"]["url"])
+            elif event == "Network.loadingFailed" and params.get("blockedReason"):
+                self.blocked[params["requestId"]] = str(params["blockedReason"])
             if msg.get("id") == mid:
                 if "error" in msg:
                     raise RuntimeError(f"{method}: {msg['error']}")

@@ -8,20 +8,30 @@ executable of the rerun-sdk wheel) as a child process bound to 127.0.0.1: its gR
 buffers what is logged for viewers that connect late, and its HTTP server hosts the web
 viewer. (The SDK's in-process `serve_grpc` / `serve_web_viewer` listen on every interface.)
 Rerun's usage analytics are switched off for the child (`RERUN_ANALYTICS=0`).
+
+The web viewer's page, left alone, has the browser ask the internet for Google's fonts,
+GitHub's latest Rerun release and Rerun's usage telemetry (tel.rerun.io). So the browser is
+not pointed at Rerun's web server directly: `ViewerPage` serves the same files on the
+`--port` (127.0.0.1) with a Content-Security-Policy that lets the page reach only itself and
+the gRPC proxy, and the browser refuses everything else.
 """
 
 from __future__ import annotations
 
+import http.server
 import os
 import queue
 import socket
 import subprocess
 import threading
 import time
+import urllib.error
 import urllib.parse
+import urllib.request
 from collections.abc import Callable
 from contextlib import suppress
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -133,6 +143,8 @@ class RerunServer:
         for port in (self.web_port, self.grpc_port):
             if _listening(port):
                 raise ConfigError(f"port {port} on {LOOPBACK} is taken: choose another --port")
+        self.page: ViewerPage | None = None
+        self._rerun_web_port = free_port()  # Rerun's own web server, behind `ViewerPage`
         env = dict(os.environ, RERUN_ANALYTICS="0")
         self.proc = subprocess.Popen(
             [
@@ -143,7 +155,7 @@ class RerunServer:
                 "--port",
                 str(self.grpc_port),
                 "--web-viewer-port",
-                str(self.web_port),
+                str(self._rerun_web_port),
                 "--server-memory-limit",
                 memory_limit,
             ],
@@ -153,7 +165,7 @@ class RerunServer:
             env=env,
         )
         deadline = time.monotonic() + start_timeout_s
-        while not (_listening(self.grpc_port) and _listening(self.web_port)):
+        while not (_listening(self.grpc_port) and _listening(self._rerun_web_port)):
             if self.proc.poll() is not None:
                 err = (self.proc.stderr.read() if self.proc.stderr else b"").decode(
                     errors="replace"
@@ -164,11 +176,16 @@ class RerunServer:
                 self.close()
                 raise NodeUnavailableError(
                     f"Rerun's server did not listen on {LOOPBACK}:{self.grpc_port} and "
-                    f":{self.web_port} within {start_timeout_s:.0f} s"
+                    f":{self._rerun_web_port} within {start_timeout_s:.0f} s"
                 )
             time.sleep(0.1)
         # Its log goes nowhere from now on (a full pipe would block it).
         threading.Thread(target=self._drain, daemon=True).start()
+        try:
+            self.page = ViewerPage(self.web_port, self._rerun_web_port, self.grpc_port)
+        except OSError as e:
+            self.close()
+            raise ConfigError(f"cannot serve the viewer on {LOOPBACK}:{self.web_port}: {e}") from e
 
     def _drain(self) -> None:
         if self.proc.stderr is not None:
@@ -188,9 +205,12 @@ class RerunServer:
     def viewer_url(self) -> str:
         """What a browser opens: the web viewer, told where the data is."""
         q = urllib.parse.quote(self.grpc_url, safe="")
-        return f"http://{LOOPBACK}:{self.web_port}/?url={q}"
+        return f"http://{LOOPBACK}:{self.web_port}/?url={q}&hide_welcome_screen"
 
     def close(self, timeout: float = 10.0) -> None:
+        if self.page is not None:
+            self.page.close()
+            self.page = None
         if self.proc.poll() is None:
             self.proc.terminate()
             try:
@@ -204,3 +224,85 @@ class RerunServer:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def content_security_policy(grpc_port: int) -> str:
+    """The page may load and connect to itself and the gRPC proxy on loopback, nothing else."""
+    grpc = f"http://{LOOPBACK}:{grpc_port}"
+    return "; ".join(
+        (
+            "default-src 'self'",
+            "script-src 'self' 'unsafe-inline' 'unsafe-eval' 'wasm-unsafe-eval'",
+            "style-src 'self' 'unsafe-inline'",
+            "img-src 'self' data: blob:",
+            "font-src 'self' data:",
+            f"connect-src 'self' {grpc} blob: data:",
+            "worker-src 'self' blob:",
+            "frame-src 'none'",
+            "object-src 'none'",
+        )
+    )
+
+
+_KEEP_HEADERS = ("content-type", "cache-control", "last-modified", "etag")
+
+
+class ViewerPage:
+    """Rerun's web-viewer files (fetched once from its server on `upstream_port`) served on
+    127.0.0.1:`port` with `content_security_policy`; GET and HEAD only."""
+
+    def __init__(self, port: int, upstream_port: int, grpc_port: int) -> None:
+        cache: dict[str, tuple[int, list[tuple[str, str]], bytes]] = {}
+        lock = threading.Lock()
+        csp = content_security_policy(grpc_port)
+        upstream = f"http://{LOOPBACK}:{upstream_port}"
+
+        def fetch(path: str) -> tuple[int, list[tuple[str, str]], bytes]:
+            with lock:
+                hit = cache.get(path)
+                if hit is not None:
+                    return hit
+                try:
+                    with urllib.request.urlopen(upstream + path, timeout=60) as r:
+                        body = r.read()
+                        headers = [
+                            (k, v) for k, v in r.headers.items() if k.lower() in _KEEP_HEADERS
+                        ]
+                        out = (int(r.status), headers, body)
+                except urllib.error.HTTPError as e:
+                    return int(e.code), [("Content-Type", "text/plain")], b"not found"
+                cache[path] = out
+                return out
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def _answer(self, with_body: bool) -> None:
+                path = urllib.parse.urlsplit(self.path).path or "/"
+                status, headers, body = fetch(path)
+                self.send_response(status)
+                for k, v in headers:
+                    self.send_header(k, v)
+                self.send_header("Content-Length", str(len(body)))
+                self.send_header("Content-Security-Policy", csp)
+                self.send_header("Referrer-Policy", "no-referrer")
+                self.end_headers()
+                if with_body:
+                    self.wfile.write(body)
+
+            def do_GET(self) -> None:
+                self._answer(True)
+
+            def do_HEAD(self) -> None:
+                self._answer(False)
+
+            def log_message(self, format: str, *args: Any) -> None:
+                pass  # quiet
+
+        self.server = http.server.ThreadingHTTPServer((LOOPBACK, port), Handler)
+        self.server.daemon_threads = True
+        self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+        self._thread.join(10.0)

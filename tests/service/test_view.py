@@ -307,7 +307,8 @@ def test_the_server_listens_on_loopback_only() -> None:
 
 def _nontrivial(png: bytes) -> tuple[bool, str]:
     """The viewer has drawn the scene: many colours, none covering almost everything, and the
-    table's colour (a brown of the 3-D view) present."""
+    colours of the table (brown), of the object and wrist goals (blues) and of the belief bars
+    (green) all present, so the data has arrived, not only the empty panels."""
     from PIL import Image
 
     a = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).reshape(-1, 3).astype(np.int32)
@@ -315,8 +316,13 @@ def _nontrivial(png: bytes) -> tuple[bool, str]:
     dominant = counts.max() / len(a)
     r, g, b = a[:, 0], a[:, 1], a[:, 2]
     brown = float(np.mean((r > g + 15) & (g > b + 10) & (r > 90)))
-    ok = len(colours) > 500 and dominant < 0.8 and brown > 0.02
-    return ok, f"{len(colours)} colours, dominant {dominant:.2f}, table-brown {brown:.3f}"
+    blue = float(np.mean((b > r + 25) & (b > 150)))
+    green = float(np.mean((g > r + 20) & (g > b + 40)))
+    ok = len(colours) > 500 and dominant < 0.8 and brown > 0.02 and blue > 0.001 and green > 0.005
+    return ok, (
+        f"{len(colours)} colours, dominant {dominant:.2f}, table brown {brown:.3f}, "
+        f"object/goal blue {blue:.4f}, bar green {green:.4f}"
+    )
 
 
 @pytest.mark.slow
@@ -350,7 +356,7 @@ def test_the_served_viewer_shows_a_recognition_in_headless_chromium(
                 png, ok, why, during = b"", False, "", False
                 while time.monotonic() < deadline and t.is_alive():
                     feed.pump(0.0)
-                    if scene.grasps >= 3:
+                    if scene.grasps >= 6:
                         rec.flush()
                         png = browser.screenshot()
                         ok, why = _nontrivial(png)
@@ -358,11 +364,33 @@ def test_the_served_viewer_shows_a_recognition_in_headless_chromium(
                         if ok:
                             break
                     time.sleep(0.5)
+                # For the figure: a few more looks for a moment the viewer has caught up
+                # (two screenshots alike) while the recognition still runs; not required.
+                for _ in range(6 if ok else 0):
+                    time.sleep(0.5)
+                    feed.pump(0.0)
+                    again = browser.screenshot()
+                    if not t.is_alive() or not _nontrivial(again)[0]:
+                        break
+                    if again == png:
+                        break
+                    png = again
                 (tmp_path / "view.png").write_bytes(png)
                 assert ok, f"the viewer did not draw the scene within {WAIT_S:.0f} s: {why}"
                 assert during, "the recognition ended before the screenshot"
+                # The page reached nothing but loopback: whatever else Rerun's page asks for
+                # (fonts, its release check, its telemetry) the served page's CSP blocks.
+                browser.screenshot()  # the events so far read in
+                away = {
+                    rid: u
+                    for rid, u in browser.requested.items()
+                    if not u.startswith(("http://127.0.0.1:", "data:", "blob:"))
+                }
+                assert browser.requested, "no request seen"
+                unblocked = {u for rid, u in away.items() if browser.blocked.get(rid) != "csp"}
+                assert not unblocked, unblocked
                 with open_client([ep], FAKE_ROBOT, timeout=30.0) as client:
-                    assert client.cancel("browser").cancelled
+                    client.cancel("browser")  # (it may have run out of poses meanwhile)
                 _pump_until_done(feed, t, out)
             finally:
                 browser.close()
@@ -371,7 +399,7 @@ def test_the_served_viewer_shows_a_recognition_in_headless_chromium(
             assert browser.proc.poll() is not None
         rec.disconnect()
     res = out["result"]
-    assert res.stop_reason == "cancelled" and scene.grasps == res.moves >= 3
+    assert res.stop_reason in ("cancelled", "exhausted") and scene.grasps == res.moves >= 5
     figure = ROOT / "docs" / "figures" / "view.png"
     if figure.parent.is_dir() and not figure.exists():
         figure.write_bytes(png)  # the docs' figure, made once (delete it to make it again)
