@@ -126,6 +126,25 @@ def rerun_executable() -> Path:
     return exe
 
 
+def _die_with_parent() -> Callable[[], None] | None:
+    """What the child runs before exec: on Linux, SIGTERM when its parent dies (even killed),
+    so no server is left behind listening. Everything is looked up here, in the parent: the
+    child of a threaded process may only call into C."""
+    try:
+        import ctypes
+        import signal
+
+        prctl = ctypes.CDLL(None, use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    sigterm = int(signal.SIGTERM)
+
+    def set_pdeathsig() -> None:
+        prctl(1, sigterm)  # PR_SET_PDEATHSIG
+
+    return set_pdeathsig
+
+
 class RerunServer:
     """Rerun's gRPC proxy and web viewer on 127.0.0.1, a child process stopped by `close`."""
 
@@ -163,6 +182,7 @@ class RerunServer:
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
             env=env,
+            preexec_fn=_die_with_parent(),
         )
         deadline = time.monotonic() + start_timeout_s
         while not (_listening(self.grpc_port) and _listening(self._rerun_web_port)):

@@ -46,6 +46,7 @@ HAND_COLOUR = (60, 60, 70, 255)
 CONTACT_COLOUR = (230, 40, 40, 255)
 PAST_CONTACT_COLOUR = (240, 160, 60, 255)
 GOAL_COLOUR = (60, 120, 230, 255)
+GOAL_PATH_COLOUR = (60, 120, 230, 110)
 PALM_HALF_SIZES = (0.045, 0.035, 0.012)  # a ReFlex palm, roughly (hand frame, metres)
 AXIS_LENGTH = 0.06
 EYE_OFFSET = np.array([0.55, -0.45, 0.40])  # the camera, from the object (metres)
@@ -204,16 +205,11 @@ class SceneLogger:
             goals = np.vstack(s.goals)
             self.rec.log(
                 "world/object/wrist_goals",
-                rr.Points3D(
-                    goals,
-                    radii=0.006,
-                    colors=[GOAL_COLOUR],
-                    labels=[str(m) for m in s.moves[-len(goals) :]],
-                ),
+                rr.Points3D(goals, radii=0.005, colors=[GOAL_COLOUR]),
             )
             self.rec.log(
                 "world/object/wrist_goals/path",
-                rr.LineStrips3D([goals], colors=[GOAL_COLOUR], radii=0.0015),
+                rr.LineStrips3D([goals], colors=[GOAL_PATH_COLOUR], radii=0.001),
             )
         pts = np.asarray(msg.contacts, dtype=np.float64).reshape(-1, 3)
         s.contacts.append(pts)

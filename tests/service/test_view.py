@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 from collections import defaultdict
+from contextlib import suppress
 from pathlib import Path
 from typing import Any
 
@@ -294,12 +295,63 @@ def test_the_server_listens_on_loopback_only() -> None:
     with RerunServer(free_port()) as server:
         pid = server.pid
         out = subprocess.run(["ss", "-Hltnp"], capture_output=True, text=True).stdout
-        mine = [line for line in out.splitlines() if f"pid={pid}," in line]
-        assert len(mine) >= 2, out
-        for line in mine:
-            assert f"127.0.0.1:{server.grpc_port}" in line or f"127.0.0.1:{server.web_port}" in line
+        local = [line.split()[3] for line in out.splitlines() if f"pid={pid}," in line]
+        assert f"127.0.0.1:{server.grpc_port}" in local and len(local) == 2, out  # + its web
+        assert all(addr.startswith("127.0.0.1:") for addr in local), local
+        page = [line.split()[3] for line in out.splitlines() if f":{server.web_port} " in line]
+        assert page == [f"127.0.0.1:{server.web_port}"], out  # ours, in this process
         assert server.viewer_url.startswith(f"http://127.0.0.1:{server.web_port}/?url=")
     assert server.proc.poll() is not None
+
+
+def test_the_view_command_serves_the_page_and_stops_on_sigterm(
+    start_fake_daemon, trained_home: Path
+) -> None:
+    """`activetouch view` as its own process: it prints the address, serves the viewer's page
+    with the loopback-only policy, and on SIGTERM stops with its Rerun server."""
+    import queue
+    import signal
+    import subprocess
+    import urllib.request
+
+    from activetouch.view.live import _listening
+
+    _daemon, ep = start_fake_daemon()
+    port, grpc = free_port(), free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "activetouch", "view", "--connect", ep, "--robot", FAKE_ROBOT,
+         "--port", str(port), "--grpc-port", str(grpc), "--data", str(trained_home)],
+        cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True,
+    )  # fmt: skip
+    lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+    reader = threading.Thread(
+        target=lambda: [lines.put(line) for line in proc.stderr or ()], daemon=True
+    )
+    reader.start()
+    try:
+        deadline, said = time.monotonic() + WAIT_S, ""
+        while "open http://" not in said and time.monotonic() < deadline:
+            assert proc.poll() is None, f"view exited with {proc.returncode}: {said}"
+            with suppress(queue.Empty):
+                said += lines.get(timeout=1.0)
+        assert f"open http://127.0.0.1:{port}/?url=" in said, said
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=30) as r:
+            csp = r.headers["Content-Security-Policy"]
+            page = r.read()
+        assert b"re_viewer.js" in page
+        assert f"connect-src 'self' http://127.0.0.1:{grpc} " in csp
+        assert _listening(grpc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            rc = proc.wait(60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(30)
+    assert rc == 0
+    assert not _listening(port) and not _listening(grpc)
 
 
 # --------------------------------------------------------------------------- in a real browser

@@ -7,6 +7,7 @@ the belief per class."""
 from __future__ import annotations
 
 import argparse
+import signal
 import threading
 
 from rich.console import Console
@@ -74,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
     connect = list(args.connect or [loopback_endpoint()])
     console = Console(stderr=True)
     stop = threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        # SIGTERM (systemd, kill) ends the view as Ctrl-C does: the Rerun server stops too.
+        signal.signal(signal.SIGTERM, lambda *_: stop.set())
     with RerunServer(args.port, args.grpc_port) as server:
         rec = rr.RecordingStream("activetouch", recording_id=f"activetouch-{svc.robot}")
         rec.connect_grpc(server.grpc_url)
