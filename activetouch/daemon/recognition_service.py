@@ -62,6 +62,7 @@ from activetouch.planning.policies import PlanningState, make_policy
 from activetouch.recordings.writer import close_recorder
 from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
+    MAX_PAYLOAD,
     CancelRequest,
     CancelResult,
     Empty,
@@ -739,7 +740,10 @@ class RecognitionService:
             publish = self.links.publish
             if publish is not None:
                 try:
-                    publish(encode(msg))
+                    data = encode(msg)
+                    if len(data) > MAX_PAYLOAD:  # a huge model's belief: receivers refuse it
+                        data = encode(msgspec.structs.replace(msg, belief=[]))
+                    publish(data)
                 except Exception as e:  # a lost progress sample must not end the recognition
                     log.warning("publishing progress failed", extra={"error": str(e)})
 
