@@ -183,6 +183,7 @@ class RerunServer:
             stderr=subprocess.PIPE,
             env=env,
             preexec_fn=_die_with_parent(),
+            start_new_session=True,  # Ctrl-C in the terminal is ours to handle, not its
         )
         deadline = time.monotonic() + start_timeout_s
         while not (_listening(self.grpc_port) and _listening(self._rerun_web_port)):

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import signal
 import threading
+from contextlib import suppress
 
 from rich.console import Console
 
@@ -100,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
                 stop.set()
             finally:
                 feed.close()
-                rec.flush()
-                rec.disconnect()
+                with suppress(Exception):  # the server may be gone already (killed with us)
+                    rec.flush()
+                    rec.disconnect()
     return 0
