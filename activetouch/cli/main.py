@@ -25,6 +25,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "activetouch.cli.commands.train",
     "activetouch.cli.commands.recognize",
     "activetouch.cli.commands.recordings",
+    "activetouch.cli.commands.view",
     "activetouch.cli.commands.eval",
     "activetouch.cli.commands.serve",
     "activetouch.cli.commands.emulate",

@@ -62,6 +62,7 @@ from activetouch.planning.policies import PlanningState, make_policy
 from activetouch.recordings.writer import close_recorder
 from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
+    MAX_PAYLOAD,
     CancelRequest,
     CancelResult,
     Empty,
@@ -612,12 +613,14 @@ class RecognitionService:
             raise DataError(f"no model: run `activetouch train` ({self.model_error})")
         wc = cfg.workcell
         placement = workcell_placement(wc)
+        extents: tuple[float, float, float] | None = None
         if self.links.place is not None:
             running.interlock.check("placing the object")
             assert req.object is not None
             t_place = time.perf_counter()
             placed = self.links.place(req.object, job.seed)
             running.place_s = time.perf_counter() - t_place
+            extents = tuple(float(e) for e in placed.extents)
             # A simulated robot stands the object on the workcell's table.
             placement = dataclasses.replace(
                 placement,
@@ -629,7 +632,7 @@ class RecognitionService:
         self._notify("on_start", running.job.session_id, placement)
         recorder = self._open_recorder(running, placement)
         try:
-            result = self._run_session(running, model, support_z, recorder)
+            result = self._run_session(running, model, support_z, recorder, placement, extents)
         except BaseException as e:
             close_recorder(recorder, self.data or Path("."), cfg, error=e)
             raise
@@ -668,7 +671,13 @@ class RecognitionService:
             return None
 
     def _run_session(
-        self, running: Running, model: Any, support_z: float, recorder: Any
+        self,
+        running: Running,
+        model: Any,
+        support_z: float,
+        recorder: Any,
+        placement: Any,
+        extents: tuple[float, float, float] | None,
     ) -> RecognizeResult:
         from activetouch.session.loop import Progress as SessionProgress
         from activetouch.session.loop import RecognitionSession, belief_table_of
@@ -697,10 +706,19 @@ class RecognitionService:
         running.policy = policy
         session_cfg = dataclasses.replace(cfg.session, max_moves=req.max_moves)
         rng = np.random.default_rng(job.seed)
+        object_pose = placement.pose
+        object_msg = PoseMsg(
+            xyz=tuple(object_pose.xyz.tolist()), quat=tuple(object_pose.quat.tolist())
+        )
 
         def on_progress(ev: SessionProgress) -> None:
             running.move = ev.move
             pose = np.asarray(ev.pose, dtype=np.float64)
+            contacts = (
+                []
+                if ev.contacts is None
+                else [tuple(c) for c in np.asarray(ev.contacts, dtype=np.float64).tolist()]
+            )
             msg = Progress(
                 session_id=sid,
                 move=ev.move,
@@ -713,11 +731,19 @@ class RecognitionService:
                 pose_id=ev.pose_id,
                 elapsed_s=max(0.0, ev.elapsed_s),
                 motion_s=max(0.0, ev.motion_s),
+                contacts=contacts,
+                belief=[(label, _probability(p)) for label, p in ev.belief],
+                object_pose=object_msg,
+                object=req.object,
+                extents=extents,
             )
             publish = self.links.publish
             if publish is not None:
                 try:
-                    publish(encode(msg))
+                    data = encode(msg)
+                    if len(data) > MAX_PAYLOAD:  # a huge model's belief: receivers refuse it
+                        data = encode(msgspec.structs.replace(msg, belief=[]))
+                    publish(data)
                 except Exception as e:  # a lost progress sample must not end the recognition
                     log.warning("publishing progress failed", extra={"error": str(e)})
 

@@ -72,6 +72,11 @@ class Progress:
     skipped: int
     elapsed_s: float
     motion_s: float = 0.0  # robot seconds moving since the session started
+    # For a live view: this grasp's contacts in the object frame ((n, 3), table contacts
+    # dropped; None: not given) and p(y|h) of every class after it (empty before a grasp felt
+    # anything).
+    contacts: np.ndarray | None = None
+    belief: list[tuple[str, float]] = field(default_factory=list)
 
 
 @dataclass
@@ -430,6 +435,10 @@ class RecognitionSession:
                         skipped=res.skipped,
                         elapsed_s=time.perf_counter() - t0,
                         motion_s=res.motion_s,
+                        contacts=res.contacts[-1],
+                        belief=[(n, float(v)) for n, v in zip(names, p, strict=True)]
+                        if felt
+                        else [],
                     )
                 )
 

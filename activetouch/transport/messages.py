@@ -105,6 +105,7 @@ MAX_MOVES = 1_000
 MAX_SEED = 2**63 - 1  # numpy / int64 seeds
 Seed = Annotated[int, msgspec.Meta(ge=0, le=MAX_SEED)]
 LabelProb = tuple[Label, Probability]
+MAX_CLASSES = 1_000  # classes in a belief (a model has a few dozen)
 
 
 class Message(msgspec.Struct, forbid_unknown_fields=True):
@@ -326,6 +327,17 @@ class Progress(Message, kw_only=True):
     pose_id: NonNegInt | None = None  # index of the grasp's pose in the model's training poses
     elapsed_s: NonNegFloat = 0.0  # since the session started
     motion_s: NonNegFloat = 0.0  # robot seconds moving since the session started
+    # For a live view (`activetouch view`); added later: optional, left out of the JSON while
+    # empty, so a daemon that has none of them still speaks to clients from before them.
+    # This grasp's contacts in the object frame (table contacts dropped), metres.
+    contacts: Annotated[list[Vec3], msgspec.Meta(max_length=N_SENSORS)] = []
+    # p(y|h) of every class after this grasp, in the model's class order (empty before the
+    # first grasp that felt anything).
+    belief: Annotated[list[LabelProb], msgspec.Meta(max_length=MAX_CLASSES)] = []
+    # The object frame in the robot base frame (the placement the recognition used).
+    object_pose: PoseMsg | None = None
+    object: Label | None = None  # the placed object's name (simulation), None if unknown
+    extents: Vec3 | None = None  # its bounding-box size, metres, None if unknown
 
 
 class RecognizeResult(Message, kw_only=True):
@@ -462,19 +474,27 @@ class _Versioned(msgspec.Struct):
 _VERSION_DECODER = msgspec.json.Decoder(_Versioned)
 
 
-# Optional fields added after a message shipped: left out of the JSON while None, so the
-# daemons and clients from before them (which refuse unknown fields) still read the message.
-_ADDED_LATER: dict[type, tuple[str, ...]] = {RecognizeRequest: ("record",)}
+# Optional fields added after a message shipped: left out of the JSON while None (or empty),
+# so the daemons and clients from before them (which refuse unknown fields) still read the
+# message when they are not used.
+_ADDED_LATER: dict[type, tuple[str, ...]] = {
+    RecognizeRequest: ("record",),
+    Progress: ("contacts", "belief", "object_pose", "object", "extents"),
+}
+
+
+def _unset(value: Any) -> bool:
+    return value is None or (isinstance(value, list) and not value)
 
 
 def encode(msg: Message) -> bytes:
     """JSON bytes of `msg`."""
     try:
         later = _ADDED_LATER.get(type(msg))
-        if later and any(getattr(msg, name) is None for name in later):
+        if later and any(_unset(getattr(msg, name)) for name in later):
             d = msgspec.to_builtins(msg, enc_hook=_enc_hook)
             for name in later:
-                if d.get(name) is None:
+                if _unset(d.get(name)):
                     d.pop(name, None)
             return _ENCODER.encode(d)
         return _ENCODER.encode(msg)
