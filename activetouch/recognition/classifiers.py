@@ -357,7 +357,8 @@ class LinearSVMClassifier(_KernelClassifier):
         total = st[-1]
         if not total > 0:
             return self._uniform.copy()
-        z = (k.platt_a / total) * st[:-1] + self._platt_offset
+        # Scores of the normalised histogram first: a/total overflows for a subnormal total.
+        z = k.platt_a * (st[:-1] / total) + self._platt_offset
         q = self._per_class(1.0 / (1.0 + np.exp(np.minimum(z, Z_CLIP))), "sum")
         qs = q.sum()
         return q / qs if qs > 0 else self._uniform.copy()
