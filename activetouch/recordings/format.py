@@ -47,6 +47,10 @@ PLAN = "/activetouch/plan"
 ROBOT_TIME = "/activetouch/robot_time"
 ERROR = "/activetouch/error"
 RESULT = "/activetouch/result"
+HAND_STATE = "/activetouch/hand_state"
+
+# What a recording holds (`REQUEST`'s "kind"): a recognition, or a `calibrate` procedure.
+RECOGNITION, CALIBRATION = "recognition", "calibration"
 
 _num = {"type": "number"}
 _int = {"type": "integer"}
@@ -72,9 +76,14 @@ JSON_TOPICS: dict[str, tuple[str, dict]] = {
         "activetouch.Request",
         _obj(
             "activetouch.Request",
-            "What was asked, and what answered it: the request, the model, the belief settings",
+            "What was asked, and what answered it: a recognition's request, model and belief "
+            "settings, or a calibration's procedure, device and settings",
             {
+                "kind": {"enum": [RECOGNITION, CALIBRATION]},
                 "session_id": _str,
+                "procedure": _str,
+                "device": _str,
+                "settings": {"type": "object"},
                 "source": _str,
                 "policy": _str,
                 "max_moves": _int,
@@ -90,7 +99,7 @@ JSON_TOPICS: dict[str, tuple[str, dict]] = {
                 "placement": _pose,
                 "started": _num,
             },
-            ["session_id", "policy", "class_names"],
+            ["session_id"],
         ),
     ),
     GRASP: (
@@ -177,6 +186,40 @@ JSON_TOPICS: dict[str, tuple[str, dict]] = {
             "activetouch.Result",
             "The recognition's answer (the daemon's RecognizeResult fields), or its error",
             {"label": _str, "labels": {"type": "array", "items": _str}, "error": _str},
+            [],
+        ),
+    ),
+}
+
+# A `calibrate` recording: REQUEST (kind "calibration"), every new hand state on HAND_STATE
+# (and /joint_states), every flange goal on /activetouch/wrist_goal (world frame) and where
+# the hand got to on /tf, ERROR, and RESULT: the stored calibration record, or the error.
+CALIBRATION_TOPICS: dict[str, tuple[str, dict]] = {
+    REQUEST: JSON_TOPICS[REQUEST],
+    HAND_STATE: (
+        "activetouch.HandState",
+        _obj(
+            "activetouch.HandState",
+            "One new state of the hand during a calibration: every sensor's pressure above "
+            "the zero offset, those in contact, finger angles (rad), the producer's stamp (s)",
+            {
+                "pressures": _nums,
+                "contact": _ints,
+                "finger_angles": _nums,
+                "preshape": _num,
+                "stamp": _num,
+            },
+            ["pressures", "contact", "finger_angles"],
+        ),
+    ),
+    ERROR: JSON_TOPICS[ERROR],
+    RESULT: (
+        "activetouch.CalibrationResult",
+        _obj(
+            "activetouch.CalibrationResult",
+            "The calibration record as `calibrate` stores it (kind, device, values, quality), "
+            "or the error that ended the procedure",
+            {"record": {"type": "object"}, "stored": {"type": "boolean"}, "error": _str},
             [],
         ),
     ),

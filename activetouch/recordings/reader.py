@@ -44,6 +44,11 @@ class Recording:
         return (self.json.get(fmt.REQUEST) or [{}])[0]
 
     @property
+    def kind(self) -> str:
+        """`fmt.RECOGNITION` or `fmt.CALIBRATION` (files before the field: recognitions)."""
+        return str(self.request.get("kind", fmt.RECOGNITION))
+
+    @property
     def result(self) -> dict[str, Any] | None:
         got = self.json.get(fmt.RESULT)
         return got[-1] if got else None

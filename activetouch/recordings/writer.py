@@ -43,38 +43,25 @@ def _clean(value: Any) -> Any:
     return value
 
 
-class RecordingWriter:
-    """One recording. `request`: what `fmt.REQUEST` carries (session_id, policy, class_names
-    ...). Messages are stamped with the wall clock (ns since the epoch)."""
+class _McapFile:
+    """One MCAP file with the ROS 2 channels and the JSON channels of `json_topics`; each
+    message stamped with the wall clock (ns since the epoch). `flush` ends a chunk."""
 
-    def __init__(self, path: Path, request: dict[str, Any]) -> None:
+    def __init__(self, path: Path, json_topics: dict[str, tuple[str, dict]]) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in finish()
+        self._file: IO[bytes] = open(self.path, "wb")  # noqa: SIM115 - closed in _close()
         self._w = Writer(self._file, compression=CompressionType.ZSTD)
         self._w.start(profile=fmt.PROFILE, library=LIBRARY)
         self._channels: dict[str, int] = {}
         for topic, typename in fmt.ROS_TOPICS.items():
             sid = self._w.register_schema(typename, "ros2msg", fmt.ros_schema(typename))
             self._channels[topic] = self._w.register_channel(topic, "cdr", sid)
-        for topic, (name, schema) in fmt.JSON_TOPICS.items():
+        for topic, (name, schema) in json_topics.items():
             sid = self._w.register_schema(name, "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self._w.register_channel(topic, "json", sid)
         self._seq = 0
         self.finished = False
-        self.class_names = list(request.get("class_names", []))
-        self.grasps = 0
-        self._json(fmt.REQUEST, {"move": 0, **request})
-        placement = request.get("placement")
-        if placement is not None:
-            self.placement(np.asarray(placement, dtype=np.float64))
-        self._w.flush()
-
-    def placement(self, pose: np.ndarray) -> None:
-        """The object frame in the world (robot base) frame, (7,) x y z qx qy qz qw."""
-        ns = time.time_ns()
-        tf = fmt.tf_message(ns, [(fmt.WORLD_FRAME, fmt.OBJECT_FRAME, pose)])
-        self._add(fmt.TF_STATIC, tf, ns)
 
     def _add(self, topic: str, data: bytes, ns: int | None = None) -> None:
         ns = time.time_ns() if ns is None else ns
@@ -86,6 +73,34 @@ class RecordingWriter:
     def _json(self, topic: str, payload: dict[str, Any], ns: int | None = None) -> None:
         body = {"v": fmt.SCHEMA_VERSION, **payload}
         self._add(topic, json.dumps(_clean(body), allow_nan=False).encode(), ns)
+
+    def _close(self) -> None:
+        """Summary and footer, then the file is closed."""
+        try:
+            self._w.finish()
+        finally:
+            self._file.close()
+
+
+class RecordingWriter(_McapFile):
+    """One recognition's recording. `request`: what `fmt.REQUEST` carries (session_id,
+    policy, class_names ...)."""
+
+    def __init__(self, path: Path, request: dict[str, Any]) -> None:
+        super().__init__(path, fmt.JSON_TOPICS)
+        self.class_names = list(request.get("class_names", []))
+        self.grasps = 0
+        self._json(fmt.REQUEST, {"move": 0, "kind": fmt.RECOGNITION, **request})
+        placement = request.get("placement")
+        if placement is not None:
+            self.placement(np.asarray(placement, dtype=np.float64))
+        self._w.flush()
+
+    def placement(self, pose: np.ndarray) -> None:
+        """The object frame in the world (robot base) frame, (7,) x y z qx qy qz qw."""
+        ns = time.time_ns()
+        tf = fmt.tf_message(ns, [(fmt.WORLD_FRAME, fmt.OBJECT_FRAME, pose)])
+        self._add(fmt.TF_STATIC, tf, ns)
 
     def wrist_goal(self, move: int, pose_id: int, pose: np.ndarray) -> None:
         """Before the arm moves to `pose` (object frame) for grasp `move`."""
@@ -169,9 +184,8 @@ class RecordingWriter:
                 )
             else:
                 self._json(fmt.RESULT, {"move": self.grasps, **(result or {})})
-            self._w.finish()
         finally:
-            self._file.close()
+            self._close()
 
 
 class SafeRecorder:

@@ -64,6 +64,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "deg about z) while the procedure believes the nominal one",
     )
     p.add_argument("--directions", type=int, default=None, help="object: approaches (8)")
+    p.add_argument(
+        "--no-record",
+        dest="record",
+        action="store_false",
+        help="write no recording of this procedure (default: recording.enabled, an MCAP file "
+        "under <data>/recordings/)",
+    )
     add_common_options(p)
     p.set_defaults(func=run)
 
@@ -84,20 +91,66 @@ def run(args: argparse.Namespace) -> int:
     device = device_name(cfg, args.device)
     if args.what == "import":
         return run_import(root, device, [args.kind, *args.files], args, console)
-    if args.what == "tactile":
-        rec = run_tactile(cfg, root, device, args, console)
-    elif args.what == "fingers":
-        rec = run_fingers(cfg, root, device, args, console)
-    elif args.what == "mount":
-        rec = run_mount(cfg, root, device, args, console)
-    else:
-        rec = run_object(cfg, root, args.device, args, console)
-    if args.json:
-        print(rec.to_json(), end="")
-    if not args.dry_run:
-        path = store.save(root, rec)
-        console.print(f"stored {path}")
+    procedure = {"tactile": run_tactile, "fingers": run_fingers, "mount": run_mount}.get(
+        args.what, run_object
+    )
+    recorder = _recorder(cfg, root, device, args) if args.record else None
+    try:
+        rec = procedure(cfg, root, args.device if args.what == "object" else device, args,
+                        console, recorder)  # fmt: skip
+        if args.json:
+            print(rec.to_json(), end="")
+        if not args.dry_run:
+            path = store.save(root, rec)
+            console.print(f"stored {path}")
+    except BaseException as e:
+        _close_recorder(recorder, root, cfg, console, error=e)
+        raise
+    _close_recorder(recorder, root, cfg, console, record=rec, stored=not args.dry_run)
     return 0
+
+
+def _recorder(cfg, root, device, args):
+    from activetouch.recordings.calibration import open_calibration_recorder
+
+    settings = {
+        k: getattr(args, k)
+        for k in ("duration", "k_sigma", "min_threshold", "no_open", "inject_mount", "object",
+                  "inject_object", "directions", "accept_current", "dry_run")
+        if getattr(args, k, None) not in (None, False)
+    }  # fmt: skip
+    return open_calibration_recorder(
+        root, cfg, procedure=args.what, device=device, settings=settings
+    )
+
+
+def _close_recorder(recorder, root, cfg, console, record=None, stored=False, error=None):
+    """Finish the recording with the record (or the error), then apply the size/age limits."""
+    if recorder is None:
+        return
+    from activetouch.recordings.store import prune
+
+    if error is not None:
+        recorder.finish(error=error)
+    else:
+        recorder.finish(record=json.loads(record.to_json()), stored=stored)
+        console.print(f"recorded {recorder.path}", highlight=False)
+    try:
+        prune(root, cfg.recording, keep=recorder.path)
+    except Exception as e:  # the calibration is done and stored: only the limits failed
+        console.print(f"[yellow]recordings: cannot apply the limits: {e}[/]")
+
+
+def _recorded(recorder, hand=None, flange=None):
+    """The hand and flange a procedure is handed: recorded ones when recording."""
+    if recorder is None:
+        return hand, flange
+    from activetouch.recordings.calibration import RecordingFlange, RecordingHand
+
+    return (
+        None if hand is None else RecordingHand(hand, recorder),
+        None if flange is None else RecordingFlange(flange, recorder),
+    )
 
 
 def _hand(cfg, root):
@@ -109,7 +162,7 @@ def _hand(cfg, root):
     return hand, ctx
 
 
-def run_tactile(cfg, root, device, args, console):
+def run_tactile(cfg, root, device, args, console, recorder=None):
     from activetouch.calibration import store
     from activetouch.calibration.tactile import TactileSettings, apply_tactile, calibrate_tactile
 
@@ -123,7 +176,7 @@ def run_tactile(cfg, root, device, args, console):
     previous = store.load(root, "tactile", device)
     hand, ctx = _hand(cfg, root)
     try:
-        rec, fit = calibrate_tactile(hand, device, st, previous)
+        rec, fit = calibrate_tactile(_recorded(recorder, hand)[0], device, st, previous)
         apply_tactile(hand, fit.zero, fit.threshold)
     finally:
         hand.disconnect()
@@ -157,7 +210,7 @@ def run_import(root, device, files, args, console) -> int:
     return 0
 
 
-def run_sf_fingers(cfg, root, device, args, console):
+def run_sf_fingers(cfg, root, device, args, console, recorder=None):
     from activetouch.calibration.sf_fingers import JOG_STEPS, calibrate_sf_fingers
     from activetouch.devices import DeviceContext
 
@@ -176,7 +229,7 @@ def run_sf_fingers(cfg, root, device, args, console):
         )
 
     try:
-        rec = calibrate_sf_fingers(hand, device, ask)
+        rec = calibrate_sf_fingers(_recorded(recorder, hand)[0], device, ask)
     except EOFError:
         raise ActiveTouchError(
             "calibrate fingers: no terminal to jog from; use --accept-current"
@@ -191,14 +244,14 @@ def run_sf_fingers(cfg, root, device, args, console):
     return rec
 
 
-def run_fingers(cfg, root, device, args, console):
+def run_fingers(cfg, root, device, args, console, recorder=None):
     from activetouch.calibration.fingers import calibrate_fingers
 
     if cfg.hand.type == "reflex-sf":
-        return run_sf_fingers(cfg, root, device, args, console)
+        return run_sf_fingers(cfg, root, device, args, console, recorder)
     hand, ctx = _hand(cfg, root)
     try:
-        rec, fit = calibrate_fingers(hand, device)
+        rec, fit = calibrate_fingers(_recorded(recorder, hand)[0], device)
     finally:
         hand.disconnect()
         ctx.close()
@@ -224,7 +277,7 @@ def _parse_mount(text: str):
     return Pose(np.array(v[:3]) / 1000.0, Rotation.from_euler("xyz", v[3:], degrees=True).as_quat())
 
 
-def run_mount(cfg, root, device, args, console):
+def run_mount(cfg, root, device, args, console, recorder=None):
     from activetouch.calibration import store
     from activetouch.calibration.mount import calibrate_mount
     from activetouch.calibration.probing import FloatingFlange
@@ -248,9 +301,10 @@ def run_mount(cfg, root, device, args, console):
 
             arm = MountedArm(arm, _parse_mount(args.inject_mount))
         threshold = float(getattr(cfg.sim, "contact_threshold", 20.0))
+        hand, flange = _recorded(recorder, devices.hand, FloatingFlange(arm))
         rec, fit, _ = calibrate_mount(
-            devices.hand,
-            FloatingFlange(arm),
+            hand,
+            flange,
             mount0,
             cfg.workcell.table_top_z,
             mount_device,
@@ -281,7 +335,7 @@ def _parse_object_error(text: str):
     )
 
 
-def run_object(cfg, root, device, args, console):
+def run_object(cfg, root, device, args, console, recorder=None):
     from activetouch.calibration import store
     from activetouch.calibration.object_frame import (
         DEFAULT_DEVICE,
@@ -325,9 +379,10 @@ def run_object(cfg, root, device, args, console):
                 mount = Pose(rec_m.values["xyz"], rec_m.values["quat_xyzw"])
         from activetouch.sim.world import geometry_from_config
 
+        hand, flange = _recorded(recorder, devices.hand, FloatingFlange(devices.arm))
         rec, fit, _ = calibrate_object(
-            devices.hand,
-            FloatingFlange(devices.arm),
+            hand,
+            flange,
             spec,
             nominal,
             cfg.workcell.table_top_z,

@@ -67,12 +67,28 @@ def _summary(path: Path) -> dict[str, Any]:
     except DataError as e:
         return {"id": path.stem, "path": str(path), "error": str(e)}
     req, res = rec.request, rec.result or {}
+    if rec.kind == "calibration":
+        return {
+            "id": path.stem,
+            "path": str(path),
+            "kind": rec.kind,
+            "started": req.get("started"),
+            "object": f"calibrate {req.get('procedure')}",
+            "label": req.get("device"),
+            "grasps": 0,
+            "moves": len(rec.log_times.get("/tf", [])),
+            "size": path.stat().st_size,
+            "source": req.get("source"),
+            "complete": rec.complete,
+            "error": res.get("error"),
+        }
     label = res.get("label")
     if label is None:
         label = rec.labels[-1] if rec.labels else ""
     return {
         "id": path.stem,
         "path": str(path),
+        "kind": rec.kind,
         "started": req.get("started"),
         "object": req.get("object"),
         "label": label,
@@ -151,6 +167,9 @@ def run_show(args: argparse.Namespace) -> int:
     console = Console(soft_wrap=True)
     req = rec.request
     console.print(f"[bold]{path.stem}[/]  {path}", highlight=False)
+    if rec.kind == fmt.CALIBRATION:
+        _show_calibration(rec, console)
+        return 0
     console.print(
         f"{_when(req.get('started'))}  {req.get('source', '')}  object "
         f"{req.get('object') or '-'}  policy {req.get('policy')}  seed {req.get('seed')}  "
@@ -201,6 +220,49 @@ def run_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _show_calibration(rec: Any, console: Console) -> None:
+    from activetouch.recordings import format as fmt
+
+    req = rec.request
+    settings = " ".join(f"{k}={v}" for k, v in (req.get("settings") or {}).items())
+    console.print(
+        f"{_when(req.get('started'))}  calibrate {req.get('procedure')}  device "
+        f"{req.get('device')}  hand {req.get('hand')}  arm {req.get('arm')}  {settings}",
+        highlight=False,
+    )
+    states = rec.json.get(fmt.HAND_STATE, [])
+    if states:
+        span = states[-1]["stamp"] - states[0]["stamp"]
+        touched = sum(1 for s in states if s["contact"])
+        console.print(
+            f"hand states: {len(states)} over {span:.2f} s, {touched} with a contact",
+            highlight=False,
+        )
+    console.print(
+        f"flange moves: {len(rec.log_times.get(fmt.TF, []))}, grasps: "
+        f"{len(rec.ros.get(fmt.CONTACTS, []))}",
+        highlight=False,
+    )
+    res = rec.result
+    if res is None:
+        console.print("[yellow]no result: the recording was cut short[/]")
+    elif res.get("error"):
+        console.print(f"[red]failed:[/] {res.get('error_type', '')}: {res['error']}")
+    else:
+        r = res.get("record") or {}
+        stored = "stored" if res.get("stored") else "not stored (--dry-run)"
+        console.print(
+            f"result: {r.get('kind')} {r.get('device')}, {stored}; quality "
+            f"{json.dumps(r.get('quality', {}))[:300]}",
+            highlight=False,
+        )
+    console.print(
+        "channels: "
+        + ", ".join(f"{t} ({c.schema_name}, {c.count})" for t, c in rec.channels.items()),
+        highlight=False,
+    )
+
+
 def run_replay(args: argparse.Namespace) -> int:
     from activetouch.recordings.reader import read_recording
     from activetouch.recordings.store import find_recording
@@ -212,6 +274,11 @@ def run_replay(args: argparse.Namespace) -> int:
     if not path.is_file():
         path = find_recording(root, args.file)
     rec = read_recording(path)
+    if rec.kind != "recognition":
+        raise DataError(
+            f"{path.name} records `calibrate {rec.request.get('procedure')}`: replay re-runs "
+            "recognitions (`activetouch recordings show` shows this one)"
+        )
     if not rec.grasps:
         raise DataError(f"{path}: no grasp recorded, nothing to replay")
     if args.model:
