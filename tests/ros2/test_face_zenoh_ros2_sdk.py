@@ -1,6 +1,6 @@
 """The daemon's ROS 2 face seen by zenoh-ros2-sdk (PyPI; ROBOTIS-GIT/zenoh_ros2_sdk), a second,
-third-party implementation of rmw_zenoh's protocol. Skipped unless it is installed (it is not a
-dependency). Every definition and hash is passed explicitly, so it fetches nothing; its session
+third-party implementation of rmw_zenoh's protocol (a dev dependency; skipped where it is
+missing). Every definition and hash is passed explicitly, so it fetches nothing; its session
 connects to the fake daemon's loopback endpoint with scouting off and listens nowhere."""
 
 from __future__ import annotations
