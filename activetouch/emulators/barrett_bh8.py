@@ -34,6 +34,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from activetouch.emulators.threaded import ThreadedEmulator
+
 log = logging.getLogger(__name__)
 
 # Emulator-side copies of the facts (deliberately not imported from the driver).
@@ -130,7 +132,7 @@ class _Puck:
     props: dict[str, int] = field(default_factory=dict)
 
 
-class BH8Emulator:
+class BH8Emulator(ThreadedEmulator):
     """The four hand pucks on one python-can bus. Use as a context manager or start()/stop()."""
 
     def __init__(self, cfg: BH8EmulatorConfig | None = None) -> None:
@@ -157,39 +159,25 @@ class BH8Emulator:
         }
         self._rng = random.Random(self.cfg.seed)
         self._bus: Any = None
-        self._thread: threading.Thread | None = None
-        self._running = False
         self._lock = threading.Lock()
         self._last = time.monotonic()
 
     # -- lifecycle ------------------------------------------------------------------------
 
-    def start(self) -> BH8Emulator:
-        import can
+    thread_name = "bh8-emulator"
+
+    def _open(self) -> None:
+        import can  # optional: only the CAN emulator needs python-can
 
         self._bus = can.Bus(
             interface=self.cfg.interface, channel=self.cfg.channel, receive_own_messages=False
         )
-        self._running = True
         self._last = time.monotonic()
-        self._thread = threading.Thread(target=self._loop, name="bh8-emulator", daemon=True)
-        self._thread.start()
-        return self
 
-    def stop(self) -> None:
-        self._running = False
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+    def _close(self) -> None:
         if self._bus is not None:
             self._bus.shutdown()
             self._bus = None
-
-    def __enter__(self) -> BH8Emulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def power_cycle(self) -> None:
         """The hand's power goes off and on: every puck asleep again, its encoder counting

@@ -33,6 +33,8 @@ from typing import Protocol
 
 import numpy as np
 
+from activetouch.emulators.threaded import ThreadedEmulator
+
 INST_PING, INST_READ, INST_WRITE, INST_SYNC_WRITE = 0x01, 0x02, 0x03, 0x83
 BROADCAST = 0xFE
 ERR_CHECKSUM, ERR_INSTRUCTION = 0x10, 0x40
@@ -83,7 +85,7 @@ class SFEmulatorConfig:
     faults: SFFaults = field(default_factory=SFFaults)
 
 
-class SFEmulator:
+class SFEmulator(ThreadedEmulator):
     """`port` is the pty slave path the driver opens. Start/stop, or use as a context."""
 
     def __init__(
@@ -114,8 +116,6 @@ class SFEmulator:
         self.instructions: list[tuple[int, int, bytes]] = []  # (id, instruction, params)
         self._buf = bytearray()
         self._lock = threading.Lock()
-        self._running = False
-        self._thread: threading.Thread | None = None
         self._last = time.monotonic()
         self._update_present()
 
@@ -138,27 +138,15 @@ class SFEmulator:
 
     # -- lifecycle ------------------------------------------------------------------------
 
-    def start(self) -> SFEmulator:
-        self._running = True
-        self._last = time.monotonic()
-        self._thread = threading.Thread(target=self._loop, name="sf-emulator", daemon=True)
-        self._thread.start()
-        return self
+    thread_name = "sf-emulator"
 
-    def stop(self) -> None:
-        self._running = False
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+    def _open(self) -> None:
+        self._last = time.monotonic()
+
+    def _close(self) -> None:
         for fd in (self.master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
-
-    def __enter__(self) -> SFEmulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # -- bytes ----------------------------------------------------------------------------
 

@@ -39,6 +39,8 @@ from typing import Protocol
 
 import numpy as np
 
+from activetouch.emulators.threaded import ThreadedEmulator
+
 log = logging.getLogger(__name__)
 
 # Byte offsets of the 202-byte state packet (little-endian).
@@ -200,7 +202,7 @@ def parse_command(data: bytes) -> tuple[str, list[int]] | None:
     return None
 
 
-class TakktileEmulator:
+class TakktileEmulator(ThreadedEmulator):
     """Runs the board: a thread sends state at `rate_hz` to `state_to` and obeys commands on
     `command_listen`. Use as a context manager; `stop()` ends it."""
 
@@ -236,8 +238,6 @@ class TakktileEmulator:
         self._held: bytes | None = None
         self._delayed: list[tuple[float, bytes]] = []
         self._lock = threading.Lock()
-        self._running = False
-        self._thread: threading.Thread | None = None
         self._t0 = time.monotonic()
         self.state_to = _addr(cfg.state_to)
         self._rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -288,27 +288,13 @@ class TakktileEmulator:
 
     # -- lifecycle ------------------------------------------------------------------------
 
-    def start(self) -> TakktileEmulator:
-        self._running = True
-        self._thread = threading.Thread(target=self._loop, name="takktile-emulator", daemon=True)
-        self._thread.start()
-        return self
+    thread_name = "takktile-emulator"
 
-    def stop(self) -> None:
-        self._running = False
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+    def _close(self) -> None:
         self._rx.close()
         if self._uni is not None:
             self._uni.close()
         self._tx.close()
-
-    def __enter__(self) -> TakktileEmulator:
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     # -- the board ------------------------------------------------------------------------
 

@@ -57,6 +57,18 @@ def stream_rate(read: Callable[[], Any], seconds: float, stamp: Callable[[Any], 
     return len(seen) / seconds
 
 
+def stream_step(
+    kind: str, name: str, hz: float, dev_type: str, dead: bool, dead_text: str, slow_fix: str
+) -> Step:
+    """The verdict on a device's stream: dead (FAIL), under half its rate (WARN), or OK."""
+    expected = STREAM_HZ.get(dev_type)
+    if dead:
+        return Step(kind, name, FAIL, dead_text, CONNECT_FIX.get(dev_type, ""))
+    if expected and hz < expected / 2:
+        return Step(kind, name, WARN, f"{hz:.0f} Hz (expected ~{expected:g})", slow_fix)
+    return Step(kind, name, OK, f"{hz:.0f} Hz")
+
+
 def _connect(kind: str, dev_type: str, make: Callable[[], Any]) -> tuple[Any, Step]:
     fix = CONNECT_FIX.get(dev_type, "")
     try:
@@ -83,31 +95,14 @@ def check_hand(cfg: Config, root: Path, ctx: DeviceContext, seconds: float) -> l
     if hand is None:
         return steps
     try:
-        expected = STREAM_HZ.get(hand_type)
         hz = stream_rate(hand.state, seconds, lambda s: s.stamp)
-        st = hand.state()
-        if getattr(st, "stale", False) or hz == 0:
-            steps.append(
-                Step(
-                    "hand",
-                    "stream",
-                    FAIL,
-                    f"no fresh state ({hz:.0f} Hz)",
-                    CONNECT_FIX.get(hand_type, ""),
-                )
+        dead = bool(getattr(hand.state(), "stale", False)) or hz == 0
+        steps.append(
+            stream_step(
+                "hand", "stream", hz, hand_type, dead, f"no fresh state ({hz:.0f} Hz)",
+                "check the link's load and cabling",
             )
-        elif expected and hz < expected / 2:
-            steps.append(
-                Step(
-                    "hand",
-                    "stream",
-                    WARN,
-                    f"{hz:.0f} Hz (expected ~{expected:g})",
-                    "check the link's load and cabling",
-                )
-            )
-        else:
-            steps.append(Step("hand", "stream", OK, f"{hz:.0f} Hz"))
+        )  # fmt: skip
         fault = getattr(hand, "fault", None)
         steps.append(
             Step(
@@ -197,24 +192,13 @@ def check_arm(cfg: Config, ctx: DeviceContext, seconds: float) -> list[Step]:
     if arm is None:
         return steps
     try:
-        expected = STREAM_HZ.get(arm_type)
         hz = stream_rate(arm.joint_state, seconds, lambda s: s.stamp)
-        if hz == 0:
-            steps.append(
-                Step("arm", "joint states", FAIL, "none fresh", CONNECT_FIX.get(arm_type, ""))
+        steps.append(
+            stream_step(
+                "arm", "joint states", hz, arm_type, hz == 0, "none fresh",
+                "check the bridge's network",
             )
-        elif expected and hz < expected / 2:
-            steps.append(
-                Step(
-                    "arm",
-                    "joint states",
-                    WARN,
-                    f"{hz:.0f} Hz (expected ~{expected:g})",
-                    "check the bridge's network",
-                )
-            )
-        else:
-            steps.append(Step("arm", "joint states", OK, f"{hz:.0f} Hz"))
+        )  # fmt: skip
         fmt = getattr(arm, "bridge_format", None)
         if fmt is not None:
             ns = getattr(arm, "bridge_namespace", "")

@@ -20,12 +20,12 @@ import numpy as np
 
 from activetouch.interfaces import Grasp, HandState, HandWrapper, Pose
 from activetouch.recordings import format as fmt
-from activetouch.recordings.writer import _McapFile
+from activetouch.recordings.writer import McapFile, SafeRecorder
 
 log = logging.getLogger(__name__)
 
 
-class CalibrationWriter(_McapFile):
+class CalibrationWriter(McapFile):
     def __init__(self, path: Path, request: dict[str, Any]) -> None:
         super().__init__(path, fmt.CALIBRATION_TOPICS)
         self.moves = 0
@@ -88,38 +88,11 @@ class CalibrationWriter(_McapFile):
             self._close()
 
 
-class CalibrationRecorder:
-    """What `calibrate` holds: forwards to a `CalibrationWriter`; the first failure is
-    logged and ends the recording (never the calibration)."""
-
-    def __init__(self, writer: CalibrationWriter) -> None:
-        self.writer: CalibrationWriter | None = writer
-        self.path = writer.path
-
-    def call(self, name: str, *args: Any, **kw: Any) -> None:
-        w = self.writer
-        if w is None:
-            return
-        try:
-            getattr(w, name)(*args, **kw)
-        except Exception as e:
-            log.warning("recording %s stopped: %s: %s", w.path, type(e).__name__, e)
-            self.writer = None
-            try:
-                w.finish(error=e)
-            except Exception:
-                log.debug("cannot finish the recording", exc_info=True)
-
-    def finish(self, **kw: Any) -> None:
-        self.call("finish", **kw)
-        self.writer = None
-
-
 class RecordingHand(HandWrapper):
     """The hand as a procedure sees it, every new state and grasp recorded. Attributes the
     `Hand` interface does not name (a driver's calibration hooks) are the inner hand's."""
 
-    def __init__(self, inner: Any, recorder: CalibrationRecorder) -> None:
+    def __init__(self, inner: Any, recorder: SafeRecorder) -> None:
         super().__init__(inner)
         self._recorder = recorder
         self._last: tuple[float, Any] | None = None
@@ -160,7 +133,7 @@ class Flange(Protocol):
 class RecordingFlange:
     """A flange (`calibration.probing.Flange`) whose goals and reached poses are recorded."""
 
-    def __init__(self, inner: Flange, recorder: CalibrationRecorder) -> None:
+    def __init__(self, inner: Flange, recorder: SafeRecorder) -> None:
         self.inner = inner
         self._recorder = recorder
 
@@ -190,7 +163,7 @@ def open_calibration_recorder(
     procedure: str,
     device: str,
     settings: dict[str, Any] | None = None,
-) -> CalibrationRecorder | None:
+) -> SafeRecorder | None:
     """Start recording `calibrate <procedure>` if ``cfg.recording.enabled`` (None otherwise,
     or when the file cannot be made: a warning, the calibration goes on)."""
     from activetouch.recordings.store import new_recording_path, prune
@@ -212,7 +185,7 @@ def open_calibration_recorder(
     }
     path = new_recording_path(root, session_id, started)
     try:
-        return CalibrationRecorder(CalibrationWriter(path, request))
+        return SafeRecorder(CalibrationWriter(path, request))
     except Exception as e:
         log.warning("cannot record to %s: %s: %s", path, type(e).__name__, e)
         return None

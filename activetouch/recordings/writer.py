@@ -43,7 +43,7 @@ def _clean(value: Any) -> Any:
     return value
 
 
-class _McapFile:
+class McapFile:
     """One MCAP file with the ROS 2 channels and the JSON channels of `json_topics`; each
     message stamped with the wall clock (ns since the epoch). `flush` ends a chunk."""
 
@@ -82,7 +82,7 @@ class _McapFile:
             self._file.close()
 
 
-class RecordingWriter(_McapFile):
+class RecordingWriter(McapFile):
     """One recognition's recording. `request`: what `fmt.REQUEST` carries (session_id,
     policy, class_names ...)."""
 
@@ -189,16 +189,17 @@ class RecordingWriter(_McapFile):
 
 
 class SafeRecorder:
-    """Forwards to a `RecordingWriter`; the first failure is logged and ends the recording."""
+    """Forwards to a writer (`RecordingWriter`, or a calibration's); the first failure is logged
+    and ends the recording, never what is being recorded."""
 
-    def __init__(self, writer: RecordingWriter | None) -> None:
+    def __init__(self, writer: Any) -> None:
         self.writer = writer
 
     @property
     def path(self) -> Path | None:
         return None if self.writer is None else self.writer.path
 
-    def _call(self, name: str, *args: Any, **kw: Any) -> None:
+    def call(self, name: str, *args: Any, **kw: Any) -> None:
         w = self.writer
         if w is None:
             return
@@ -213,22 +214,22 @@ class SafeRecorder:
                 log.debug("cannot finish the recording", exc_info=True)
 
     def placement(self, *args: Any, **kw: Any) -> None:
-        self._call("placement", *args, **kw)
+        self.call("placement", *args, **kw)
 
     def wrist_goal(self, *args: Any, **kw: Any) -> None:
-        self._call("wrist_goal", *args, **kw)
+        self.call("wrist_goal", *args, **kw)
 
     def plan(self, *args: Any, **kw: Any) -> None:
-        self._call("plan", *args, **kw)
+        self.call("plan", *args, **kw)
 
     def error(self, *args: Any, **kw: Any) -> None:
-        self._call("error", *args, **kw)
+        self.call("error", *args, **kw)
 
     def grasp(self, *args: Any, **kw: Any) -> None:
-        self._call("grasp", *args, **kw)
+        self.call("grasp", *args, **kw)
 
     def finish(self, *args: Any, **kw: Any) -> None:
-        self._call("finish", *args, **kw)
+        self.call("finish", *args, **kw)
         self.writer = None
 
 

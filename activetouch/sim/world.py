@@ -68,6 +68,7 @@ from activetouch.planning.motion.floating import (
 )
 from activetouch.sim import PATHS
 from activetouch.sim.pybullet import pb
+from activetouch.sim.spawn import spawn_object
 
 if TYPE_CHECKING:
     from activetouch.objects.library import ObjectSpec
@@ -245,8 +246,6 @@ class SimWorld:
         """Put a library object on the table (removing any previous one); its body id.
         `offset_xy` (metres) and `yaw_rad` (about the vertical through its centre) misplace
         the body without telling the object frame (see the module notes)."""
-        from activetouch.objects.library import spawn_object  # the object library's loader
-
         self.clear()
         ext = np.asarray(spec.extents, dtype=np.float64)
         offset = np.array([float(offset_xy[0]), float(offset_xy[1]), 0.0])

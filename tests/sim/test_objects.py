@@ -23,9 +23,9 @@ from activetouch.objects.library import (
     PAPER_SIM_OBJECTS,
     ObjectLibrary,
     read_obj_groups,
-    spawn_object,
 )
 from activetouch.sim.render import contacts_in_object_frame, read_obj, render_object_png
+from activetouch.sim.spawn import spawn_object
 
 HOLLOW = ("cup", "mug", "bowl", "toilet_paper", "mug_real", "bowl_real", "glass_real")
 
