@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+from activetouch import paths
 from activetouch.calibration import store
 from activetouch.calibration.fingers import apply_fingers
 from activetouch.calibration.tactile import apply_tactile
@@ -21,7 +22,6 @@ def load_into(
 ) -> dict[str, Path | None]:
     """Apply the stored `kinds` of `device` to `hand`; log which file each came from, and a
     warning naming the command when one is missing or stale. Returns kind -> file used."""
-    from activetouch import paths
 
     root = paths.data_dir(data)
     used: dict[str, Path | None] = {}

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from activetouch.calibration.probing import guarded_descent, hand_points, lowest_point_start
 from activetouch.calibration.store import CalibrationRecord
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.interfaces import Pose
@@ -190,11 +191,6 @@ def calibrate_mount(
     """Touch the table at every orientation of `touch_orientations` and solve for the mount.
     `flange` is a `probing.Flange`; the hand is opened first (its open geometry is the probe).
     """
-    from activetouch.calibration.probing import (
-        guarded_descent,
-        hand_points,
-        lowest_point_start,
-    )
 
     st = settings or MountSettings()
     hand.open()

@@ -43,9 +43,13 @@ from numba import njit
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
+from activetouch.calibration import store
+from activetouch.calibration.probing import guarded_descent
 from activetouch.calibration.store import CalibrationRecord
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.interfaces import Hand, Pose
+from activetouch.models.reflex import ReflexGeometry, collision_boxes
+from activetouch.objects.library import read_obj_groups
 from activetouch.planning.motion.base import Placement
 
 if TYPE_CHECKING:
@@ -112,7 +116,6 @@ def hand_boxes(
 ) -> Boxes:
     """The hand's collision boxes (the twin URDF's, `models.reflex.collision_boxes`) in the
     hand frame at these joint angles (open by default), stacked for the distance kernels."""
-    from activetouch.models.reflex import collision_boxes
 
     boxes = collision_boxes(geom, preshape, proximal, distal)
     return Boxes(
@@ -180,6 +183,7 @@ class ObjectShape:
 def sample_parts(parts: list[np.ndarray], spacing: float, seed: int = 0) -> np.ndarray:
     """Vertices plus area-uniform samples (about one per spacing^2) of each part's convex
     hull surface."""
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial import ConvexHull
 
     rng = np.random.default_rng(seed)
@@ -201,7 +205,6 @@ def sample_parts(parts: list[np.ndarray], spacing: float, seed: int = 0) -> np.n
 
 def object_shape(spec: ObjectSpec, spacing: float = 0.0015, coarse: int = 1500) -> ObjectShape:
     """The object's convex parts (what the twin collides with) as surface samples."""
-    from activetouch.objects.library import read_obj_groups
 
     parts = [g for path in spec.collision_meshes for g in read_obj_groups(Path(path))]
     if not parts:
@@ -393,7 +396,6 @@ def box_corners(boxes: Boxes) -> np.ndarray:
 
 def thumb_sites(geom: ReflexGeometry | None = None) -> np.ndarray:
     """Distances of the thumb's sensor sites from its base along the open (straight) thumb."""
-    from activetouch.models.reflex import ReflexGeometry
 
     g = geom or ReflexGeometry()
     return np.concatenate(
@@ -490,7 +492,6 @@ def probe_object(
 ) -> tuple[list[ObjectTouch], list[str]]:
     """One guarded horizontal approach per direction; between them the hand rises above the
     object. Returns the touches and, for each approach that found nothing, why."""
-    from activetouch.calibration.probing import guarded_descent
 
     to_flange = mount.inverse()
     clear = st.max_error_m * np.sqrt(2) + st.start_clearance_m
@@ -638,7 +639,6 @@ def stored_placement(
 ) -> Placement | None:
     """The stored placement of `object_name`, or None when there is none or it is another
     object's; a missing, foreign or stale record is a warning naming the command."""
-    from activetouch.calibration import store
 
     rec = store.load(root, "object", device)
     cmd = f"`activetouch calibrate object --object {object_name}`"

@@ -17,6 +17,13 @@ from scipy.spatial.transform import Rotation
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import Arm, Hand, Pose
+from activetouch.models.reflex import DISTAL_LINKS, PROXIMAL_LINKS, collision_boxes
+from activetouch.planning.motion.floating import (
+    WRIST_JOINTS,
+    pose_to_wrist_joints,
+    straight_trajectory,
+    wrist_joints_to_pose,
+)
 
 
 class Flange(Protocol):
@@ -29,7 +36,6 @@ class FloatingFlange:
     """A floating-wrist arm (joints x y z roll pitch yaw): its joints are the flange pose."""
 
     def __init__(self, arm: Arm) -> None:
-        from activetouch.planning.motion.floating import WRIST_JOINTS
 
         if tuple(arm.joint_names) != WRIST_JOINTS:
             raise CalibrationRefusedError(
@@ -39,12 +45,10 @@ class FloatingFlange:
         self.arm = arm
 
     def pose(self) -> Pose:
-        from activetouch.planning.motion.floating import wrist_joints_to_pose
 
         return wrist_joints_to_pose(self.arm.joint_state().position)
 
     def move_to(self, pose: Pose) -> None:
-        from activetouch.planning.motion.floating import pose_to_wrist_joints, straight_trajectory
 
         start = self.arm.joint_state().position
         goal = pose_to_wrist_joints(pose)
@@ -68,7 +72,6 @@ def onset_height(z: np.ndarray, pressure: np.ndarray, threshold: float) -> float
 def hand_points(preshape: float = 0.0, proximal=None, distal=None) -> np.ndarray:
     """(n, 3) corners of every finger link's collision boxes (proximal, distal, fingertip) in
     the hand frame at these joint angles (open by default): the hand's known geometry."""
-    from activetouch.models.reflex import DISTAL_LINKS, PROXIMAL_LINKS, collision_boxes
 
     fingers = set(PROXIMAL_LINKS + DISTAL_LINKS)  # not the palm's housing, pad and swivels
     boxes = collision_boxes(None, preshape, proximal, distal)

@@ -6,6 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 from activetouch.interfaces import Arm, ArmWrapper, JointState, JointTrajectory, Pose
+from activetouch.planning.motion.floating import (
+    WRIST_JOINTS,
+    pose_to_wrist_joints,
+    wrist_joints_to_pose,
+    wrist_trajectory_positions,
+)
 
 
 class MountedArm(ArmWrapper):
@@ -18,19 +24,12 @@ class MountedArm(ArmWrapper):
         self._inv = true_mount.inverse()
 
     def joint_state(self) -> JointState:
-        from activetouch.planning.motion.floating import pose_to_wrist_joints, wrist_joints_to_pose
 
         js = self.inner.joint_state()
         flange = wrist_joints_to_pose(js.position).compose(self._inv)
         return JointState(js.names, pose_to_wrist_joints(flange), js.velocity, js.stamp)
 
     def execute(self, trajectory: JointTrajectory) -> None:
-        from activetouch.planning.motion.floating import (
-            WRIST_JOINTS,
-            pose_to_wrist_joints,
-            wrist_joints_to_pose,
-            wrist_trajectory_positions,
-        )
 
         q = wrist_trajectory_positions(trajectory)
         hand_q = np.stack(

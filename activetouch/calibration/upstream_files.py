@@ -30,6 +30,7 @@ RAW_MAX = 1023.0  # a disabled sensor's threshold, as calibrate tactile does it
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
+    # deferred: YAML only for upstream calibration files
     import yaml
 
     try:

@@ -31,10 +31,14 @@ import zenoh
 
 from activetouch import paths
 from activetouch.calibration import store
+from activetouch.calibration.fingers import calibrate_fingers
+from activetouch.calibration.probing import FloatingFlange
 from activetouch.calibration.store import KINDS, CalibrationRecord, device_name
+from activetouch.calibration.tactile import TactileSettings, apply_tactile, calibrate_tactile
 from activetouch.daemon.serving import Op, ServedNode
 from activetouch.errors import ActiveTouchError
 from activetouch.interfaces import Pose
+from activetouch.objects.library import ObjectLibrary
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import Label, Message, Name
 
@@ -73,7 +77,6 @@ def hand_device(cfg: Any, explicit: str | None) -> str:
 
 
 def run_tactile(devices: Any, root: Path, req: CalibrateRequest) -> CalibrationRecord:
-    from activetouch.calibration.tactile import TactileSettings, apply_tactile, calibrate_tactile
 
     device = hand_device(devices.ctx.cfg, req.device)
     st = TactileSettings()
@@ -86,7 +89,6 @@ def run_tactile(devices: Any, root: Path, req: CalibrateRequest) -> CalibrationR
 
 
 def run_fingers(devices: Any, root: Path, req: CalibrateRequest) -> CalibrationRecord:
-    from activetouch.calibration.fingers import calibrate_fingers
 
     rec, _ = calibrate_fingers(devices.hand, hand_device(devices.ctx.cfg, req.device))
     return rec
@@ -100,8 +102,8 @@ def _stored_mount(root: Path, mount_device: str) -> Pose:
 
 
 def run_mount(devices: Any, root: Path, req: CalibrateRequest) -> CalibrationRecord:
+    # deferred: loads scipy
     from activetouch.calibration.mount import calibrate_mount
-    from activetouch.calibration.probing import FloatingFlange
 
     cfg = devices.ctx.cfg
     mount_device = f"{hand_device(cfg, req.device)}-on-{cfg.arm.type}"
@@ -117,14 +119,15 @@ def run_mount(devices: Any, root: Path, req: CalibrateRequest) -> CalibrationRec
 
 
 def run_object(devices: Any, root: Path, req: CalibrateRequest) -> CalibrationRecord:
+    # deferred: loads numba, scipy
     from activetouch.calibration.object_frame import (
         DEFAULT_DEVICE,
         IDENTITY,
         calibrate_object,
         nominal_placement,
     )
-    from activetouch.calibration.probing import FloatingFlange
-    from activetouch.objects.library import ObjectLibrary
+
+    # deferred: loads pybullet
     from activetouch.sim.world import geometry_from_config
 
     if not req.object:

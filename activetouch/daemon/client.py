@@ -50,7 +50,12 @@ from activetouch.transport.messages import (
     Status,
     decode,
 )
-from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
+from activetouch.transport.zenoh_session import (
+    ZenohSession,
+    ZenohSettings,
+    free_tcp_port,
+    loopback_endpoint,
+)
 
 
 class BusyError(ActiveTouchError):
@@ -314,7 +319,6 @@ def local_daemon(
     Waits for the daemon's liveliness token; afterwards sends SIGTERM to its pid and waits for
     it (SIGKILL if it has not exited within `stop_timeout`). Its log goes to `log` (or is
     discarded)."""
-    from activetouch.transport.zenoh_session import free_tcp_port, loopback_endpoint
 
     endpoint = loopback_endpoint(free_tcp_port())
     cmd = [sys.executable, "-m", "activetouch", "serve", "--sim", "--robot", robot]

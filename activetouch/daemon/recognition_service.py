@@ -59,7 +59,11 @@ from activetouch.errors import (
 )
 from activetouch.planning.motion.base import workcell_placement
 from activetouch.planning.policies import PlanningState, make_policy
-from activetouch.recordings.writer import close_recorder
+from activetouch.recordings.format import placement_pose
+from activetouch.recordings.writer import close_recorder, open_recorder
+from activetouch.session.local import load_trained
+from activetouch.session.loop import Progress as SessionProgress
+from activetouch.session.loop import RecognitionSession, belief_table_of
 from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
     MAX_PAYLOAD,
@@ -159,7 +163,6 @@ class RecognitionService:
         data: Path | None = None,
         links: ServiceLinks | None = None,
     ) -> None:
-        from activetouch.session.local import load_trained
 
         set_redactions(data)
         self.data, self.model_dir = data, model_dir  # recordings go to <data>/recordings/
@@ -211,7 +214,6 @@ class RecognitionService:
     def _warm_up(self) -> None:
         """Plan once now, so the first request does not wait for numba to load (or compile)
         the tree search, nor for the grasp-likelihood table (cached on the model)."""
-        from activetouch.session.loop import belief_table_of
 
         t = time.perf_counter()
         try:
@@ -642,8 +644,6 @@ class RecognitionService:
     def _open_recorder(self, running: Running, placement: Any) -> Any:
         """The recording of this recognition (None: `recording.enabled` off, the request's
         `record: false`, or no data directory)."""
-        from activetouch.recordings.format import placement_pose
-        from activetouch.recordings.writer import open_recorder
 
         job, req = running.job, running.job.request
         if self.data is None or req.record is False:
@@ -679,8 +679,6 @@ class RecognitionService:
         placement: Any,
         extents: tuple[float, float, float] | None,
     ) -> RecognizeResult:
-        from activetouch.session.loop import Progress as SessionProgress
-        from activetouch.session.loop import RecognitionSession, belief_table_of
 
         job, req, cfg = running.job, running.job.request, self.cfg
         sid = job.session_id

@@ -294,6 +294,7 @@ class BH8Emulator(ThreadedEmulator):
         if self.faults.loss and self._rng.random() < self.faults.loss:
             self.counts["lost"] += 1
             return
+        # deferred: python-can only for the CAN hand
         import can
 
         arb = 0x400 | (node << 5) | group

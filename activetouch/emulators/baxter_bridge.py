@@ -479,6 +479,7 @@ class BaxterEmulator:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # deferred: loads zenoh
     from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 
     p = argparse.ArgumentParser(prog="python -m activetouch.emulators.baxter_bridge")

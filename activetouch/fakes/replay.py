@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from activetouch import paths
 from activetouch.device_types import ArmConfig, HandConfig
 from activetouch.devices import DeviceContext
 from activetouch.errors import ConfigError, DataError
@@ -43,6 +44,7 @@ from activetouch.planning.motion.floating import (
     floating_limits,
     wrist_joints_to_pose,
 )
+from activetouch.recognition.dataset import Dataset
 
 if TYPE_CHECKING:
     from activetouch.recognition.dataset import ObjectGrasps
@@ -108,8 +110,6 @@ class FakeRig:
         self._lock = threading.Lock()
 
     def dataset(self, path: str) -> Any:
-        from activetouch import paths
-        from activetouch.recognition.dataset import Dataset
 
         with self._lock:
             if self._dataset is None:

@@ -35,7 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
+from activetouch import paths
 from activetouch.errors import ActiveTouchError, DataError
+from activetouch.objects.hard import HARD_OBJECTS
 from activetouch.objects.paper import BUILDERS, COLOURS
 from activetouch.objects.shapes import Shape, mesh_manifold
 from activetouch.storage import locked, replace_dir
@@ -64,7 +66,6 @@ def generated_set(name: str) -> tuple[str, ...]:
     """The object names of a generated set (`GENERATED_SETS`)."""
     if name != "hard":
         raise DataError(f"no generated set {name!r}; sets: {', '.join(GENERATED_SETS)}")
-    from activetouch.objects.hard import HARD_OBJECTS
 
     return HARD_OBJECTS
 
@@ -119,6 +120,7 @@ class ObjectSpec:
 
 def convex_hull_mesh(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Vertices and outward-oriented triangles of the convex hull of `points`."""
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial import ConvexHull
 
     hull = ConvexHull(np.asarray(points, dtype=np.float64))
@@ -255,6 +257,7 @@ def _urdf_mesh(path: Path) -> tuple[Path, np.ndarray, np.ndarray]:
 
 
 def _urdf_origin(path: Path, o: ET.Element) -> np.ndarray:
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial.transform import Rotation
 
     try:
@@ -293,6 +296,7 @@ def _resolve_urdf_file(urdf: Path, filename: str) -> Path:
 
 def load_mesh(path: Path, scale: float = 1.0):
     """Read an OBJ/STL/URDF as one trimesh.Trimesh in metres; errors -> DataError."""
+    # deferred: trimesh takes 0.8 s to import
     import trimesh
 
     path = Path(path)
@@ -386,6 +390,7 @@ def decompose(verts: np.ndarray, faces: np.ndarray, method: str = "coacd") -> li
 
 def _decompose_coacd(verts: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
     try:
+        # deferred: CoACD only for this decomposition
         import coacd
     except ImportError as e:
         raise ActiveTouchError(
@@ -426,6 +431,7 @@ def _quiet_fds() -> Iterator[None]:
 
 
 def _decompose_vhacd(verts: np.ndarray, faces: np.ndarray) -> list[np.ndarray]:
+    # deferred: PyBullet only for its V-HACD here
     import pybullet as p
 
     with tempfile.TemporaryDirectory() as td:
@@ -462,7 +468,6 @@ class ObjectLibrary:
 
     @classmethod
     def in_data_dir(cls, data: Path | str | None = None) -> ObjectLibrary:
-        from activetouch import paths
 
         return cls(paths.objects_dir(paths.data_dir(data)))
 
@@ -681,6 +686,7 @@ def _simplified_for_decomposition(verts: np.ndarray, faces: np.ndarray):
 
 
 def _import_meshes(mesh, src: Path, method: str) -> tuple[_Built, dict]:
+    # deferred: trimesh takes 0.8 s to import
     import trimesh
 
     lo, hi = mesh.bounds

@@ -30,6 +30,7 @@ class Shape:
 
 
 def manifold3d_module():
+    # deferred: manifold3d only for boolean solids
     import manifold3d
 
     return manifold3d
@@ -41,6 +42,7 @@ def profile(ctrl: list[tuple[float, float]], step: float = 0.002) -> np.ndarray:
     Monotone cubic (PCHIP) interpolation: no overshoot, so steps (lids, caps) stay crisp.
     Returns (n, 2) points (r, z) from the bottom to the top.
     """
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.interpolate import PchipInterpolator
 
     c = np.asarray(ctrl, dtype=np.float64)
@@ -96,6 +98,7 @@ def _polygons(cs) -> list[np.ndarray]:
 
 def _concavity(points: np.ndarray, probes: np.ndarray) -> float:
     """Largest distance from `probes` (inside) to the boundary of the hull of `points` (2-D)."""
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial import ConvexHull, QhullError
 
     try:

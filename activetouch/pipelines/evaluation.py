@@ -18,6 +18,7 @@ from scipy.stats import binomtest, bootstrap
 
 from activetouch.config import SIM_ERROR_SETTINGS, Config, SimConfig
 from activetouch.errors import ConfigError
+from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.executors import check_executor, exit_with_parent, ray_map
 from activetouch.recognition.distances import inner_product_distance
 
@@ -127,8 +128,10 @@ _MODEL_CACHE: dict[str, Any] = {}
 
 def run_job(job: Job) -> dict[str, Any]:
     """One recognition; returns the run record (JSON-able) plus arrays for the figures."""
+    # deferred: loads numba
     from activetouch.model import load_model
-    from activetouch.objects.library import ObjectLibrary
+
+    # deferred: loads numba
     from activetouch.session.local import recognize_in_twin
 
     model = _MODEL_CACHE.get(job.model_dir)

@@ -55,6 +55,7 @@ def random_free(scene: CollisionScene, n: int, rng: np.random.Generator) -> np.n
 
 def object_specs(names: tuple[str, ...]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """name -> (extents, hull points of all collision meshes) of the builtin objects."""
+    # deferred: trimesh takes 0.8 s to import
     import trimesh
 
     root = Path(tempfile.gettempdir()) / "activetouch-bench-objects"
@@ -80,6 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         help="builtin objects whose shared grid is checked (default: the paper's 7)",
     )
     args = ap.parse_args(argv)
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     rng = np.random.default_rng(args.seed)

@@ -39,8 +39,11 @@ from rich.table import Table
 from activetouch import paths
 from activetouch.config import load_config
 from activetouch.errors import ConfigError
+from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.evaluation import parse_seeds
-from activetouch.planning.policies import POLICY_NAMES
+from activetouch.planning.policies import POLICY_NAMES, make_policy
+from activetouch.session.local import load_trained, model_path, recognize_in_twin
+from activetouch.session.loop import RecognitionSession, belief_table_of
 from activetouch.transport.messages import RecognizeRequest
 
 TARGET_OVERHEAD_PCT = 5.0
@@ -74,11 +77,10 @@ def _median(xs: list[float]) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # deferred: loads zenoh
     from activetouch.daemon.client import local_daemon, open_client
-    from activetouch.objects.library import ObjectLibrary
-    from activetouch.planning.policies import make_policy
-    from activetouch.session.local import load_trained, model_path, recognize_in_twin
-    from activetouch.session.loop import RecognitionSession, belief_table_of
+
+    # deferred: loads pybullet
     from activetouch.sim.twin import open_twin
 
     args = _parser().parse_args(argv)

@@ -23,6 +23,7 @@ from activetouch.pipelines.collect import CollectStats, collect_object, pending_
 from activetouch.pipelines.executors import check_executor, exit_with_parent, ray_map
 from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset, GraspRecord
+from activetouch.session.local import placed_devices
 from activetouch.storage import locked
 
 log = logging.getLogger(__name__)
@@ -105,6 +106,7 @@ def _collect_into(
     report: Callable[[int, int], None] | None,
 ) -> CollectStats:
     """Grasp `name` at its pending poses of `grid` in a twin of its own, into `ds`."""
+    # deferred: loads pybullet
     from activetouch.sim.twin import open_twin
 
     spec = ObjectLibrary(library_root).get(name)
@@ -137,7 +139,6 @@ def _collect_on_devices(
     """Collect on the configured simulated devices (e.g. the Baxter twin): the object placed
     through their ``sim/place``, the arm moving between grasps, only the poses its wrist
     `reachable()` allows grasped (the rest recorded as skipped, as on the robot)."""
-    from activetouch.session.local import placed_devices
 
     data = Path(library_root).parent
     with placed_devices(cfg, data, name, cfg.sim.seed, "train") as (devices, placement):

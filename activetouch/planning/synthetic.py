@@ -26,6 +26,8 @@ take minutes. The construction follows the paper's training stage (Alg. 1) on ma
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 from dataclasses import dataclass
 
 import numpy as np
@@ -89,6 +91,7 @@ def _ring_directions(step_deg: float) -> np.ndarray:
 
 
 def _matrix_to_quat(R: np.ndarray) -> np.ndarray:
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_matrix(R).as_quat()
@@ -134,8 +137,6 @@ def _return_freed_memory() -> None:
     """Give freed scratch memory back to the OS. glibc keeps freed arrays of a few MB in its
     heap (the per-class tally parts, about 200 MB at 5000 poses x 100 classes), which would
     count in the process's memory for the rest of its life; elsewhere this does nothing."""
-    import ctypes
-    import ctypes.util
 
     with contextlib.suppress(OSError, AttributeError, TypeError):
         ctypes.CDLL(ctypes.util.find_library("c")).malloc_trim(0)

@@ -110,6 +110,7 @@ def _sigmoid_neg(z: np.ndarray) -> np.ndarray:
 def fit_platt(scores: np.ndarray, positive: np.ndarray) -> tuple[float, float]:
     """Platt's sigmoid p = 1 / (1 + exp(a s + c)) fitted to decision values by maximum likelihood,
     with Platt's smoothed targets (N+ + 1) / (N+ + 2) and 1 / (N- + 2). Returns (a, c)."""
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.optimize import minimize
 
     f = np.asarray(scores, dtype=np.float64)
@@ -290,6 +291,7 @@ class LinearSVMClassifier(_KernelClassifier):
 
     def _fit_svm(self, H1: np.ndarray, y: np.ndarray, n_classes: int) -> tuple[np.ndarray, ...]:
         """(W (K, D), b (K,)) of a LinearSVC on L1-normalised rows; binary expanded to 2 rows."""
+        # deferred: scikit-learn takes 1.5 s to import; only fitting needs it
         from sklearn.exceptions import ConvergenceWarning
         from sklearn.svm import LinearSVC
 

@@ -20,6 +20,7 @@ import numpy as np
 
 from activetouch.interfaces import Grasp, HandState, HandWrapper, Pose
 from activetouch.recordings import format as fmt
+from activetouch.recordings.store import new_recording_path, prune
 from activetouch.recordings.writer import McapFile, SafeRecorder
 
 log = logging.getLogger(__name__)
@@ -166,7 +167,6 @@ def open_calibration_recorder(
 ) -> SafeRecorder | None:
     """Start recording `calibrate <procedure>` if ``cfg.recording.enabled`` (None otherwise,
     or when the file cannot be made: a warning, the calibration goes on)."""
-    from activetouch.recordings.store import new_recording_path, prune
 
     if not cfg.recording.enabled:
         return None

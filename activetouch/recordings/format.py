@@ -228,6 +228,7 @@ CALIBRATION_TOPICS: dict[str, tuple[str, dict]] = {
 
 @functools.cache
 def typestore() -> Any:
+    # deferred: rosbags only when ROS messages are (de)serialised
     from rosbags.typesys import Stores, get_typestore
 
     return get_typestore(Stores.ROS2_JAZZY)

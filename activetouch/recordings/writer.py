@@ -11,6 +11,7 @@ logs one warning and stops recording, never ends the recognition.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -22,6 +23,7 @@ import numpy as np
 from mcap.writer import CompressionType, Writer
 
 from activetouch.recordings import format as fmt
+from activetouch.recordings.store import new_recording_path, prune
 
 log = logging.getLogger(__name__)
 
@@ -251,9 +253,6 @@ def open_recorder(
     """Start a recording under ``<root>/recordings/`` if ``cfg.recording.enabled`` (None
     otherwise, or if it cannot be created: a warning, the recognition goes on). `cfg`: the
     `Config`; `model`: the `TrainedModel` that recognises."""
-    import dataclasses
-
-    from activetouch.recordings.store import new_recording_path, prune
 
     if not cfg.recording.enabled:
         return None
@@ -297,7 +296,6 @@ def close_recorder(
     """Finish `recorder` (if any) with the result or error, then apply the limits."""
     if recorder is None:
         return None
-    from activetouch.recordings.store import prune
 
     path = recorder.path
     recorder.finish(result=result, error=error)

@@ -32,8 +32,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from activetouch.drivers.baxter.arm import BaxterArm, BaxterArmConfig
+from activetouch.emulators.baxter_bridge import BaxterEmulator, EmulatorSettings
 from activetouch.errors import ActiveTouchError, StoppedError, UnreachableError
 from activetouch.interfaces import Arm, JointTrajectory
+from activetouch.sim.baxter import (
+    ObjectShapes,
+    TwinBaxterArm,
+    TwinBaxterArmConfig,
+    baxter_model,
+    check_object_xy,
+    check_workcell,
+    make_twin_wrist,
+)
+from activetouch.sim.devices import twin_rig
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
@@ -210,15 +221,6 @@ class TwinEmulatedBaxterArm(BaxterArm):
 
 def make_twin_emulated(cfg: BaxterArmConfig, ctx: DeviceContext) -> TwinEmulatedBaxterArm:
     """Start the emulator on the shared twin rig and return the driver pointed at it."""
-    from activetouch.sim.baxter import (
-        ObjectShapes,
-        TwinBaxterArm,
-        TwinBaxterArmConfig,
-        baxter_model,
-        check_object_xy,
-        check_workcell,
-    )
-    from activetouch.sim.devices import twin_rig
 
     check_object_xy(ctx.cfg.workcell)  # before seconds of loading
     rig = twin_rig(ctx)
@@ -243,7 +245,7 @@ def start_emulated(
     """The emulator on a fresh loopback Zenoh endpoint, its `side` arm at `twin`'s ready pose
     and carrying `twin` (a `TwinBaxterArm`, or anything with its joint_names, joint_state,
     execute, home and model.ready), and the driver pointed at it (not yet connected)."""
-    from activetouch.emulators.baxter_bridge import BaxterEmulator, EmulatorSettings
+    # deferred: loads zenoh
     from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings, free_tcp_port
 
     cfg.check()  # resolves the side
@@ -279,8 +281,6 @@ def make_twin_emulated_wrist(
 ) -> BaxterWristMotion:
     """The twin-baxter type's motion layer on the emulated driver: placement and object hull
     from the twin world."""
-    from activetouch.sim.baxter import ObjectShapes, baxter_model, make_twin_wrist
-    from activetouch.sim.devices import twin_rig
 
     rig = twin_rig(ctx)
     model = baxter_model(ctx, cfg.motion)

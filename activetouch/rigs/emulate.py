@@ -23,9 +23,13 @@ import signal
 import threading
 from collections.abc import Iterator
 
+from activetouch import paths
 from activetouch.config import load_config
+from activetouch.emulators.reflex_takktile import KinematicFingers
 from activetouch.errors import ActiveTouchError
 from activetouch.interfaces import Pose
+from activetouch.objects.library import ObjectLibrary
+from activetouch.rigs.twin_fingers import TwinFingers
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -88,9 +92,7 @@ def build_parser() -> argparse.ArgumentParser:
 @contextlib.contextmanager
 def twin_backed(a: argparse.Namespace) -> Iterator[object]:
     """`TwinFingers` on a twin world holding `a.object`, the hand at `a.wrist` (or beside it)."""
-    from activetouch import paths
-    from activetouch.objects.library import ObjectLibrary
-    from activetouch.rigs.twin_fingers import TwinFingers
+    # deferred: loads pybullet
     from activetouch.sim.twin import open_twin
 
     cfg = load_config()
@@ -114,7 +116,6 @@ TOP_QUAT = (1.0, 0.0, 0.0, 0.0)  # hand +z pointing down (x, y, z, w)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from activetouch.emulators.reflex_takktile import KinematicFingers
 
     a = build_parser().parse_args(argv)
     if a.object is None and a.wrist is not None:

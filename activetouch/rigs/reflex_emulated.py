@@ -21,7 +21,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
+from activetouch.emulators.reflex_takktile import EmulatorConfig, Faults, TakktileEmulator
 from activetouch.interfaces import N_SENSORS, Grasp, Hand
+from activetouch.rigs.twin_fingers import TwinFingers
+from activetouch.sim.devices import twin_rig
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
@@ -77,13 +80,6 @@ class TwinEmulatedHand(ReflexTakktileHand):
 
 def make_twin_emulated(cfg: ReflexTakktileConfig, ctx: DeviceContext) -> TwinEmulatedHand:
     """Start the emulator on the shared twin rig and return the driver pointed at it."""
-    from activetouch.emulators.reflex_takktile import (
-        EmulatorConfig,
-        Faults,
-        TakktileEmulator,
-    )
-    from activetouch.rigs.twin_fingers import TwinFingers
-    from activetouch.sim.devices import twin_rig
 
     rig = twin_rig(ctx)
     sim = ctx.cfg.sim

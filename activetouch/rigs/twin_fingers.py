@@ -39,6 +39,7 @@ class TwinFingers:
         spool_limit: float = 3.6,
         gated: bool = False,
     ) -> None:
+        # deferred: loads pybullet, scipy
         from activetouch.sim.hand import SimHand
 
         self.world = world
@@ -71,6 +72,7 @@ class TwinFingers:
                 self.is_live = False
 
     def joints(self, spool: np.ndarray, preshape: float) -> tuple[np.ndarray, np.ndarray]:
+        # deferred: loads scipy
         from activetouch.models.reflex import coupled_joints
 
         g = self.world.geometry

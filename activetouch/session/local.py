@@ -15,6 +15,7 @@ import numpy as np
 from activetouch import paths
 from activetouch.config import Config, SessionConfig
 from activetouch.device_types import DEFAULT_ARM as FLOATING_ARM
+from activetouch.devices import make_devices
 from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import ObjectLibrary
@@ -71,6 +72,7 @@ def recognize_in_twin(
     the object as ``sim/place`` does. `data` is the data directory those devices read the
     object library from (default: the library's). `recorder`: the recording it writes
     (`recordings.writer.open_recorder`; the caller finishes it)."""
+    # deferred: loads pybullet
     from activetouch.sim.twin import open_twin
 
     session_cfg = cfg.session
@@ -166,7 +168,6 @@ def placed_devices(
     """`make_devices(cfg, data)` with `object_name` placed through their ``sim/place`` and the
     wrist told where it stands; closed on exit. ConfigError for devices that cannot place
     (real ones): `what` names the command for the message."""
-    from activetouch.devices import make_devices
 
     devices = make_devices(cfg, data)
     try:

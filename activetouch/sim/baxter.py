@@ -52,12 +52,19 @@ from activetouch.interfaces import (
     Pose,
     StopLatch,
 )
+from activetouch.planning.motion.base import Placement
+from activetouch.planning.motion.baxter import BaxterWristMotion
+from activetouch.planning.motion.collision import CollisionScene
 from activetouch.planning.motion.robot import (
     BAXTER_OBJECT_XY,
     BAXTER_TABLE_CENTER,
     BAXTER_TABLE_SIZE,
     BaxterMotionConfig,
+    fk,
+    hand_pose,
+    load_arm,
 )
+from activetouch.sim.devices import PacedArm, twin_rig
 
 if TYPE_CHECKING:
     from activetouch.config import WorkcellConfig
@@ -113,7 +120,6 @@ class TwinBaxterArmConfig(ArmConfig):
         }
 
     def make(self, ctx: DeviceContext) -> Arm:
-        from activetouch.sim.devices import PacedArm, twin_rig
 
         self.check()
         check_object_xy(ctx.cfg.workcell)  # before seconds of loading
@@ -127,7 +133,6 @@ class TwinBaxterArmConfig(ArmConfig):
         return PacedArm(arm, ctx.cfg.service.sim_motion_delay_s)
 
     def make_wrist(self, arm: Arm, ctx: DeviceContext) -> WristMotion:
-        from activetouch.sim.devices import twin_rig
 
         rig = twin_rig(ctx)
         return make_twin_wrist(
@@ -147,7 +152,6 @@ def baxter_model(ctx: DeviceContext, cfg: BaxterMotionConfig) -> ArmModel:
 
 @functools.lru_cache(maxsize=4)
 def _load_arm(cfg_json: str) -> ArmModel:
-    from activetouch.planning.motion.robot import load_arm
 
     return load_arm(BaxterMotionConfig(**json.loads(cfg_json)))
 
@@ -171,7 +175,6 @@ def check_object_xy(workcell: WorkcellConfig) -> None:
 def check_workcell(workcell: WorkcellConfig, model: ArmModel) -> None:
     """ConfigError if the workcell cannot be Baxter's: the object inside the robot, or the
     table through the arm at its ready pose."""
-    from activetouch.planning.motion.collision import CollisionScene
 
     check_object_xy(workcell)
     scene = CollisionScene(model, workcell.table_center, workcell.table_size)
@@ -192,6 +195,7 @@ def library_hull(root: str, name: str, extents: tuple[float, ...]) -> np.ndarray
     library object (a primitive, a body placed by hand). `extents` only keys the cache (an
     object re-imported under the same name has other extents)."""
     try:
+        # deferred: trimesh takes 0.8 s to import
         import trimesh
 
         from activetouch.objects.library import ObjectLibrary
@@ -225,7 +229,6 @@ class ObjectShapes:
 
 
 def world_placement(world: SimWorld) -> Placement:
-    from activetouch.planning.motion.base import Placement
 
     return Placement(world.object_origin)
 
@@ -301,7 +304,6 @@ class TwinBaxterArm(Arm):
         shapes: ObjectShapes | None = None,
         clock: Clock = SYSTEM_CLOCK,
     ) -> None:
-        from activetouch.planning.motion.collision import CollisionScene
 
         self.world = world
         self.model = model
@@ -342,7 +344,6 @@ class TwinBaxterArm(Arm):
 
     def hand_pose_base(self, q: np.ndarray | None = None) -> Pose:
         """The ReFlex base frame in the robot base frame at `q` (default: now), by pinocchio."""
-        from activetouch.planning.motion.robot import hand_pose
 
         return hand_pose(self.model, self._data, self._q if q is None else q)
 
@@ -372,7 +373,6 @@ class TwinBaxterArm(Arm):
 
     def hand_xyz(self, q: np.ndarray) -> np.ndarray:
         """The hand frame's origin in the base frame at `q`."""
-        from activetouch.planning.motion.robot import fk
 
         return np.array(fk(self.model, self._data, q).translation)
 
@@ -474,7 +474,6 @@ def make_twin_wrist(
 ) -> BaxterWristMotion:
     """`BaxterWristMotion` on the twin's arm whose placement and object shape follow the twin
     world (whatever `sim/place` put on the table)."""
-    from activetouch.planning.motion.baxter import BaxterWristMotion
 
     wc = world.workcell
 

@@ -34,6 +34,7 @@ from rich.table import Table
 from activetouch.config import GridConfig, SimConfig, load_config
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import N_FINGER_SENSORS, SENSORS_PER_FINGER, Pose
+from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary
 from activetouch.paths import data_dir, objects_dir
 from activetouch.planning.grid import look_at_quaternion, training_grid
 from activetouch.sim.hand import SimHand
@@ -80,7 +81,6 @@ def _place(world: SimWorld, obj: str, data: str | None) -> str:
         kind, size = PRIMITIVES[obj]
         world.place_primitive(kind, size)
         return obj
-    from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary
 
     with _library_root(data) as root:
         if obj in BUILTIN_OBJECTS:

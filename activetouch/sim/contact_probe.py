@@ -17,6 +17,8 @@ import numpy as np
 from activetouch.config import Config
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import Grasp, Pose
+from activetouch.planning.grid import SMALL_OBJECT_GRID, small_object_overrides, training_grid
+from activetouch.recognition.contacts import drop_support_contacts
 
 MIN_CONTACTS = 3  # a triangle needs three contacts
 # Warn above this share of grasps with fewer than 3 contacts (issue 15's target: >= 85 % of
@@ -57,14 +59,12 @@ def share_of(name: str, grasps: Iterable[Grasp], unreachable: int = 0) -> Contac
 
 def grid_is_small_object(cfg: Config) -> bool:
     """True when the grid already uses the small-object settings."""
-    from activetouch.planning.grid import SMALL_OBJECT_GRID
 
     return all(getattr(cfg.grid, k) == v for k, v in SMALL_OBJECT_GRID.items())
 
 
 def advice(shares: Sequence[ContactShare], cfg: Config) -> list[str]:
     """One warning per object whose share is high, each saying what to do."""
-    from activetouch.planning.grid import small_object_overrides
 
     out = []
     for s in shares:
@@ -93,8 +93,7 @@ def advice(shares: Sequence[ContactShare], cfg: Config) -> list[str]:
 def probe_object(spec, cfg: Config, seed: int = 0) -> ContactShare:
     """Grasp `spec` (an ObjectSpec) at every pose of its own grid in a fresh twin, table
     contacts dropped as in training; the share of grasps with fewer than 3 contacts."""
-    from activetouch.planning.grid import training_grid
-    from activetouch.recognition.contacts import drop_support_contacts
+    # deferred: loads pybullet
     from activetouch.sim.twin import open_twin
 
     grid = training_grid(spec.extents, cfg.grid)

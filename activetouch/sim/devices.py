@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from activetouch import paths
 from activetouch.device_types import ArmConfig, HandConfig
 from activetouch.devices import DeviceContext
 from activetouch.errors import ConfigError
@@ -32,6 +33,8 @@ from activetouch.interfaces import (
     StopLatch,
     extents_of,
 )
+from activetouch.objects.library import ObjectLibrary
+from activetouch.planning.motion.base import Placement
 from activetouch.sim import PATHS
 
 if TYPE_CHECKING:
@@ -89,8 +92,10 @@ class TwinRig:
     """One twin world with its hand and floating arm, and the object library it places from."""
 
     def __init__(self, cfg: Config, data: Any) -> None:
-        from activetouch import paths
+        # deferred: loads pybullet
         from activetouch.sim.hand import SimHand
+
+        # deferred: loads pybullet
         from activetouch.sim.world import SimArm, SimWorld
 
         self.world = SimWorld(cfg.sim, workcell=cfg.workcell)
@@ -104,7 +109,6 @@ class TwinRig:
     def place(self, obj: str, seed: int | None = None) -> Placed:
         """Put library object `obj` on the table; restart the hand's noise from `seed` (None:
         the configured one), so a recognition repeats exactly for a seed."""
-        from activetouch.objects.library import ObjectLibrary
 
         spec = ObjectLibrary(self.library_root).get(obj)  # DataError names the known
         noise_seed = self.hand.cfg.seed if seed is None else seed
@@ -115,7 +119,6 @@ class TwinRig:
         return Placed(spec.name, extents_of(spec.extents))
 
     def placement(self) -> Any:
-        from activetouch.planning.motion.base import Placement
 
         return Placement(self.world.object_origin)
 

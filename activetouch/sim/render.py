@@ -46,6 +46,7 @@ def shade(tris: np.ndarray, rgb: np.ndarray, light: np.ndarray = LIGHT) -> np.nd
 
 def pose_axes(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions (N, 3) and hand +z axes (N, 3) of wrist poses (N, 7: xyz, quat xyzw)."""
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial.transform import Rotation
 
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
@@ -57,6 +58,7 @@ def pose_axes(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def contacts_in_object_frame(poses: np.ndarray, xyz_hand: list[np.ndarray]) -> np.ndarray:
     """Contact points of each grasp (hand frame) moved into the object frame by its wrist pose."""
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial.transform import Rotation
 
     out = []
@@ -81,10 +83,14 @@ def render_object_png(
     """Draw `spec` (its visual mesh, or its convex collision parts if `parts`) with wrist
     `poses` (N, 7) as arrows and `contacts` (M, 3) as dots, all in the object frame; two
     views side by side. Returns the PNG path."""
+    # deferred: matplotlib (0.8 s) only for figures
     import matplotlib
 
     matplotlib.use("Agg")
+    # deferred: matplotlib (0.8 s) only for figures
     import matplotlib.pyplot as plt
+
+    # deferred: matplotlib (0.8 s) only for figures
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     rgb = np.asarray(spec.rgba[:3], dtype=np.float64)

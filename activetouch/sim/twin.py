@@ -27,6 +27,7 @@ from activetouch.recognition.faults import (
     faulty_reading,
     spurious_contacts,
 )
+from activetouch.sim.devices import reset_twin
 from activetouch.sim.hand import SimHand
 from activetouch.sim.world import HandContacts, SimArm, SimWorld
 
@@ -128,7 +129,6 @@ class Twin:
     def place(self, spec: ObjectSpec, seed: int) -> None:
         """Put `spec` on the table and bring the twin back to the state of a fresh one
         (`open_twin(spec, cfg, seed)`), so a recognition repeats an in-process run exactly."""
-        from activetouch.sim.devices import reset_twin
 
         reset_twin(self.world, self.hand, spec, seed)  # also redraws a faulty hand's sensors
         err = placement_error(self.cfg, seed) if self.cfg is not None else PlacementError()

@@ -24,6 +24,7 @@ from typing import Annotated, Any, Generic, Literal, TypeVar
 import msgspec
 import numpy as np
 
+from activetouch import errors
 from activetouch.errors import ActiveTouchError, MessageError
 from activetouch.interfaces import (
     N_FINGERS,
@@ -818,7 +819,6 @@ def from_msg(msg: Message) -> Pose | Grasp | HandState | JointState | JointTraje
 
 def error_types() -> dict[str, type[Exception]]:
     """Exception classes a client may re-raise by the name a node reported."""
-    from activetouch import errors
 
     known: dict[str, type[Exception]] = {"ValueError": ValueError}
     for obj in vars(errors).values():

@@ -273,6 +273,7 @@ def parse_definitions(type_name: str, text: str) -> dict[str, Any]:
     """rosbags field definitions of one ``.msg`` (``pkg/msg/Name``) or ``.srv``
     (``pkg/srv/Name``: ``Name_Request`` and ``Name_Response``) text. Relative type names
     resolve to ``pkg/msg/...``, as rosidl resolves them."""
+    # deferred: rosbags only when ROS messages are (de)serialised
     from rosbags.typesys import get_types_from_msg
 
     pkg, kind, name = _split(type_name)
@@ -294,6 +295,7 @@ def parse_definitions(type_name: str, text: str) -> dict[str, Any]:
 def _service_description(type_name: str) -> dict[str, Any]:
     """The messages ROS 2 hashes a service as: ``Name_Event`` (service_msgs' event info, at
     most one request, at most one response) and ``Name`` (request, response, event)."""
+    # deferred: rosbags only when ROS messages are (de)serialised
     from rosbags.typesys import get_types_from_msg
 
     pkg, _, name = _split(type_name)
@@ -339,6 +341,7 @@ class Ros2Types:
     RIHS01 hashes of messages and services."""
 
     def __init__(self, definitions: dict[str, str] | None = None) -> None:
+        # deferred: rosbags only when ROS messages are (de)serialised
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         defs: dict[str, Any] = parse_definitions(TRIGGER, TRIGGER_SRV)

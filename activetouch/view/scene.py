@@ -38,6 +38,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from activetouch.config import WorkcellConfig
+from activetouch.errors import DataError
+from activetouch.objects.library import ObjectLibrary
+from activetouch.sim.render import read_obj
 from activetouch.transport.messages import Progress
 
 TABLE_COLOUR = (150, 120, 90, 255)
@@ -65,9 +68,6 @@ MeshLoader = Callable[[str], tuple[np.ndarray, np.ndarray] | None]
 def library_meshes(objects_dir: Path) -> MeshLoader:
     """A loader of the object library's visual meshes (vertices, triangles) by object name;
     None for an object the library under `objects_dir` does not have."""
-    from activetouch.errors import DataError
-    from activetouch.objects.library import ObjectLibrary
-    from activetouch.sim.render import read_obj
 
     lib = ObjectLibrary(objects_dir)
 

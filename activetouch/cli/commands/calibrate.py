@@ -7,19 +7,26 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 import numpy as np
 from rich.console import Console
 
 from activetouch import paths
+from activetouch.calibration import store
+from activetouch.calibration.sf_fingers import JOG_STEPS, calibrate_sf_fingers
 from activetouch.calibration.store import device_name
+from activetouch.calibration.upstream_files import import_file
+from activetouch.cli.main import add_common_options
+from activetouch.config import load_config
 from activetouch.errors import ActiveTouchError
+from activetouch.objects.library import BUILTIN_OBJECTS, ObjectLibrary
+from activetouch.recordings.store import prune
 
 PROCEDURES = ("tactile", "fingers", "mount", "object")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser(
         "calibrate",
@@ -76,8 +83,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from activetouch.calibration import store
-    from activetouch.config import load_config
 
     console = Console(soft_wrap=True)
     root = paths.data_dir(args.data)
@@ -111,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _recorder(cfg, root, device, args):
+    # deferred: loads mcap, scipy
     from activetouch.recordings.calibration import open_calibration_recorder
 
     settings = {
@@ -128,7 +134,6 @@ def _close_recorder(recorder, root, cfg, console, record=None, stored=False, err
     """Finish the recording with the record (or the error), then apply the size/age limits."""
     if recorder is None:
         return
-    from activetouch.recordings.store import prune
 
     if error is not None:
         recorder.finish(error=error)
@@ -145,6 +150,7 @@ def _recorded(recorder, hand=None, flange=None):
     """The hand and flange a procedure is handed: recorded ones when recording."""
     if recorder is None:
         return hand, flange
+    # deferred: loads mcap, scipy
     from activetouch.recordings.calibration import RecordingFlange, RecordingHand
 
     return (
@@ -154,6 +160,7 @@ def _recorded(recorder, hand=None, flange=None):
 
 
 def _hand(cfg, root):
+    # deferred: loads scipy
     from activetouch.devices import DeviceContext
 
     ctx = DeviceContext(cfg, root)
@@ -163,7 +170,7 @@ def _hand(cfg, root):
 
 
 def run_tactile(cfg, root, device, args, console, recorder=None):
-    from activetouch.calibration import store
+    # deferred: loads scipy
     from activetouch.calibration.tactile import TactileSettings, apply_tactile, calibrate_tactile
 
     st = TactileSettings(open_first=not args.no_open)
@@ -191,10 +198,6 @@ def run_tactile(cfg, root, device, args, console, recorder=None):
 
 
 def run_import(root, device, files, args, console) -> int:
-    from pathlib import Path
-
-    from activetouch.calibration import store
-    from activetouch.calibration.upstream_files import import_file
 
     if not files or files[0] is None:
         raise ActiveTouchError("calibrate import: name the reflex-ros-pkg yaml file(s)")
@@ -211,7 +214,7 @@ def run_import(root, device, files, args, console) -> int:
 
 
 def run_sf_fingers(cfg, root, device, args, console, recorder=None):
-    from activetouch.calibration.sf_fingers import JOG_STEPS, calibrate_sf_fingers
+    # deferred: loads scipy
     from activetouch.devices import DeviceContext
 
     ctx = DeviceContext(cfg, root)
@@ -245,6 +248,7 @@ def run_sf_fingers(cfg, root, device, args, console, recorder=None):
 
 
 def run_fingers(cfg, root, device, args, console, recorder=None):
+    # deferred: loads scipy
     from activetouch.calibration.fingers import calibrate_fingers
 
     if cfg.hand.type == "reflex-sf":
@@ -264,8 +268,10 @@ def run_fingers(cfg, root, device, args, console, recorder=None):
 
 
 def _parse_mount(text: str):
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial.transform import Rotation
 
+    # deferred: loads scipy
     from activetouch.interfaces import Pose
 
     try:
@@ -278,10 +284,16 @@ def _parse_mount(text: str):
 
 
 def run_mount(cfg, root, device, args, console, recorder=None):
-    from activetouch.calibration import store
+    # deferred: loads scipy
     from activetouch.calibration.mount import calibrate_mount
+
+    # deferred: loads scipy
     from activetouch.calibration.probing import FloatingFlange
+
+    # deferred: loads scipy
     from activetouch.devices import make_devices
+
+    # deferred: loads scipy
     from activetouch.interfaces import Pose
 
     mount_device = f"{device}-on-{cfg.arm.type}"
@@ -322,6 +334,7 @@ def run_mount(cfg, root, device, args, console, recorder=None):
 
 
 def _parse_object_error(text: str):
+    # deferred: loads pybullet, scipy
     from activetouch.sim.twin import PlacementError
 
     try:
@@ -336,7 +349,7 @@ def _parse_object_error(text: str):
 
 
 def run_object(cfg, root, device, args, console, recorder=None):
-    from activetouch.calibration import store
+    # deferred: loads numba, scipy
     from activetouch.calibration.object_frame import (
         DEFAULT_DEVICE,
         IDENTITY,
@@ -344,10 +357,15 @@ def run_object(cfg, root, device, args, console, recorder=None):
         calibrate_object,
         nominal_placement,
     )
+
+    # deferred: loads scipy
     from activetouch.calibration.probing import FloatingFlange
+
+    # deferred: loads scipy
     from activetouch.devices import make_devices
+
+    # deferred: loads scipy
     from activetouch.interfaces import Pose
-    from activetouch.objects.library import ObjectLibrary
 
     if not args.object:
         raise ActiveTouchError("calibrate object: name the object with --object NAME")
@@ -417,14 +435,16 @@ def run_object(cfg, root, device, args, console, recorder=None):
 
 
 def _builtins() -> tuple[str, ...]:
-    from activetouch.objects.library import BUILTIN_OBJECTS
 
     return BUILTIN_OBJECTS
 
 
 def _misplace(devices, spec, err) -> None:
     """Stand the twin's object off its placement (the object frame stays nominal)."""
+    # deferred: loads scipy
     from activetouch.sim.devices import TWIN
+
+    # deferred: loads pybullet, scipy
     from activetouch.sim.twin import place_displaced
 
     rig = devices.ctx.shared(TWIN, lambda: None)
@@ -436,13 +456,13 @@ def _misplace(devices, spec, err) -> None:
 
 
 def _rotvec(quat):
+    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
     from scipy.spatial.transform import Rotation
 
     return Rotation.from_quat(quat).as_rotvec()
 
 
 def show(root, kind: str | None, as_json: bool, console: Console) -> int:
-    from activetouch.calibration import store
 
     rows = [(p, r) for p, r in store.list_records(root) if kind is None or p.stem == kind]
     if as_json:

@@ -14,14 +14,16 @@ from rich.console import Console
 from rich.rule import Rule
 
 from activetouch import paths
+from activetouch.cli.main import add_common_options
 from activetouch.config import load_config
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.pipelines.evaluation import parse_seeds
+from activetouch.session.local import check_request, load_trained, model_path
 from activetouch.session.loop import display_label
+from activetouch.transport.messages import RecognizeRequest
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser("demo", help="train (if needed), recognise an object, write a report")
     p.add_argument("--object", default="mug", help="object to recognise live (default: mug)")
@@ -33,12 +35,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # deferred: loads matplotlib, rich
     from activetouch.cli.commands.eval import evaluate
+
+    # deferred: loads mcap
     from activetouch.cli.commands.recognize import format_progress
+
+    # deferred: loads rich
     from activetouch.cli.commands.train import train
+
+    # deferred: loads zenoh
     from activetouch.daemon.client import local_daemon, open_client, session_progress
-    from activetouch.session.local import check_request, load_trained, model_path
-    from activetouch.transport.messages import RecognizeRequest
 
     console = Console(soft_wrap=True)  # progress lines stay whole in logs
     root = paths.data_dir(args.data)

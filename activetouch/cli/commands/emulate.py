@@ -5,6 +5,7 @@ hardware."""
 from __future__ import annotations
 
 import argparse
+import importlib
 
 EMULATORS = {
     "reflex-takktile": ("activetouch.rigs.emulate", True),
@@ -27,7 +28,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_emulate(args: argparse.Namespace) -> int:
-    import importlib
 
     module, takes_device = EMULATORS[args.device]
     argv = ([args.device] if takes_device else []) + list(args.options)

@@ -12,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from activetouch import paths
 from activetouch.cli.commands.train import parse_objects
+from activetouch.cli.main import add_common_options
 from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.objects.library import ObjectLibrary
@@ -23,15 +24,13 @@ from activetouch.pipelines.evaluation import (
     run_all,
     summarise,
 )
-from activetouch.pipelines.executors import check_executor
+from activetouch.pipelines.executors import add_executor_options, check_executor
 from activetouch.pipelines.report import write_report
 from activetouch.planning.policies import POLICY_NAMES
 from activetouch.session.local import check_request, load_trained, model_path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
-    from activetouch.pipelines.executors import add_executor_options
 
     p = sub.add_parser("eval", help="evaluate policies against the paper in the twin")
     p.add_argument("--objects", default=None, help="comma-separated (default: the model's)")

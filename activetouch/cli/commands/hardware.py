@@ -9,9 +9,13 @@ import json
 from rich.console import Console
 from rich.table import Table
 
+from activetouch import paths
+from activetouch.cli.main import add_common_options
+from activetouch.config import load_config
+from activetouch.errors import ConfigError
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser(
         "hardware",
@@ -30,9 +34,7 @@ STYLE = {"ok": "green", "warn": "yellow", "fail": "bold red", "skip": "dim"}
 
 
 def run(args: argparse.Namespace) -> int:
-    from activetouch import paths
-    from activetouch.config import load_config
-    from activetouch.errors import ConfigError
+    # deferred: loads scipy
     from activetouch.pipelines.hardware_check import FAIL, hardware_check
 
     if not args.seconds > 0:

@@ -20,8 +20,10 @@ from rich.table import Table
 
 from activetouch import paths
 from activetouch.cli.main import add_common_options
+from activetouch.config import load_config
 from activetouch.errors import DataError
 from activetouch.objects.library import ObjectLibrary, ObjectSpec
+from activetouch.sim.render import contacts_in_object_frame, render_object_png
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -153,7 +155,7 @@ def _add(args: argparse.Namespace) -> int:
 def _probe(spec: ObjectSpec, args: argparse.Namespace, err: Console) -> None:
     """Grasp the new object at its own training grid in the twin and report how often the
     hand feels fewer than 3 contacts (with what to do when that is often)."""
-    from activetouch.config import load_config
+    # deferred: loads scipy
     from activetouch.sim.contact_probe import advice, probe_object
 
     cfg = load_config(args.config, args.overrides)
@@ -178,6 +180,7 @@ def _dataset(root: Path, name: str, console: Console):
         d = paths.datasets_dir(root)
         have = sorted(p.name for p in d.iterdir() if p.is_dir()) if d.is_dir() else []
         raise DataError(f"no dataset {name!r} in {d} (has: {', '.join(have) or 'none'})")
+    # deferred: loads scipy
     from activetouch.recognition.dataset import Dataset
 
     try:
@@ -188,7 +191,6 @@ def _dataset(root: Path, name: str, console: Console):
 
 
 def _render(args: argparse.Namespace) -> int:
-    from activetouch.sim.render import contacts_in_object_frame, render_object_png
 
     err = Console(stderr=True)
     root = paths.data_dir(args.data)

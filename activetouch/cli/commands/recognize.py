@@ -13,6 +13,7 @@ import sys
 from rich.console import Console
 
 from activetouch import paths
+from activetouch.cli.main import add_common_options
 from activetouch.config import Config, load_config
 from activetouch.errors import ActiveTouchError, ConfigError
 from activetouch.objects.library import ObjectLibrary
@@ -30,7 +31,6 @@ from activetouch.transport.messages import RecognizeRequest
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser(
         "recognize", help="recognise an object by touch (in the twin, or via a daemon)"
@@ -220,12 +220,15 @@ def _report(
 
 def run_remote(args: argparse.Namespace, cfg: Config, policy: str, console: Console) -> int:
     """The recognition on the daemon at --connect, with live progress."""
+    # deferred: loads zenoh
     from activetouch.daemon.client import (
         new_session_id,
         open_client,
         session_progress,
         session_result,
     )
+
+    # deferred: loads zenoh
     from activetouch.daemon.process import check_service_config
 
     svc = cfg.service

@@ -15,11 +15,13 @@ from typing import Any
 from rich.console import Console
 
 from activetouch import paths
+from activetouch.cli.main import add_common_options
 from activetouch.errors import DataError
+from activetouch.recordings import format as fmt
+from activetouch.recordings.store import find_recording, list_recordings
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser(
         "recordings",
@@ -60,6 +62,7 @@ def _when(t: float | None) -> str:
 
 
 def _summary(path: Path) -> dict[str, Any]:
+    # deferred: loads mcap
     from activetouch.recordings.reader import read_recording
 
     try:
@@ -102,7 +105,6 @@ def _summary(path: Path) -> dict[str, Any]:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    from activetouch.recordings.store import list_recordings
 
     root = _root(args)
     recs = list_recordings(root)
@@ -140,9 +142,8 @@ def run_list(args: argparse.Namespace) -> int:
 
 
 def run_show(args: argparse.Namespace) -> int:
-    from activetouch.recordings import format as fmt
+    # deferred: loads mcap
     from activetouch.recordings.reader import read_recording
-    from activetouch.recordings.store import find_recording
 
     path = find_recording(_root(args), args.id)
     rec = read_recording(path)
@@ -221,7 +222,6 @@ def run_show(args: argparse.Namespace) -> int:
 
 
 def _show_calibration(rec: Any, console: Console) -> None:
-    from activetouch.recordings import format as fmt
 
     req = rec.request
     settings = " ".join(f"{k}={v}" for k, v in (req.get("settings") or {}).items())
@@ -264,9 +264,13 @@ def _show_calibration(rec: Any, console: Console) -> None:
 
 
 def run_replay(args: argparse.Namespace) -> int:
+    # deferred: loads mcap
     from activetouch.recordings.reader import read_recording
-    from activetouch.recordings.store import find_recording
+
+    # deferred: loads numba, scipy
     from activetouch.session.local import load_trained
+
+    # deferred: loads mcap, numba, scipy
     from activetouch.session.replay import recorded_model_dir, replay
 
     root = _root(args)

@@ -11,17 +11,19 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import msgspec
 from rich.console import Console
 
 from activetouch import paths
-from activetouch.config import Config, load_config
+from activetouch.cli.main import add_common_options
+from activetouch.config import Config, load_config, set_devices
+from activetouch.device_types import DEFAULT_ARM, DEFAULT_HAND
 from activetouch.errors import ConfigError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser(
         "serve",
@@ -118,6 +120,7 @@ def _client_options(p: argparse.ArgumentParser, serving: bool) -> None:
 
 def service_config(args: argparse.Namespace) -> Config:
     """The configuration with the command line's --robot / --listen / --connect applied."""
+    # deferred: loads mcap, numba, scipy, zenoh
     from activetouch.daemon.process import check_service_config
 
     if args.config:  # errors of the file name the file; those of --set name the key
@@ -160,8 +163,6 @@ def client_endpoints(args: argparse.Namespace, cfg: Config) -> list[str]:
 def resolve_mode(flag: str | None, cfg: Config) -> str:
     """``sim`` or ``hardware``: from --sim / --hardware, else from the configured devices.
     --sim makes the devices the twin's, unless simulated types are configured already."""
-    from activetouch.config import set_devices
-    from activetouch.device_types import DEFAULT_ARM, DEFAULT_HAND
 
     if flag == "sim":
         raw = {
@@ -179,7 +180,10 @@ def resolve_mode(flag: str | None, cfg: Config) -> str:
 
 
 def run_serve(args: argparse.Namespace) -> int:
+    # deferred: loads mcap, numba, scipy, zenoh
     from activetouch.daemon.process import DaemonOptions, serve, setup_logging
+
+    # deferred: loads numba, scipy
     from activetouch.session.local import model_path
 
     cfg = service_config(args)
@@ -196,7 +200,10 @@ def run_serve(args: argparse.Namespace) -> int:
 
 
 def _connect(args: argparse.Namespace):  # -> contextmanager[DaemonClient]
+    # deferred: loads numba, scipy, zenoh
     from activetouch.daemon.client import open_client
+
+    # deferred: loads mcap, numba, scipy, zenoh
     from activetouch.daemon.process import check_service_config
 
     cfg = service_config(args)
@@ -219,6 +226,7 @@ def _print_json(msg: msgspec.Struct) -> None:
 
 
 def run_status(args: argparse.Namespace) -> int:
+    # deferred: loads numba, scipy, zenoh
     from activetouch.daemon.client import describe_status
 
     with _connect(args) as client:
@@ -261,7 +269,10 @@ def run_estop(args: argparse.Namespace) -> int:
 
 
 def run_arm(args: argparse.Namespace) -> int:
+    # deferred: loads scipy, zenoh
     from activetouch.daemon.remote import RemoteArm
+
+    # deferred: loads zenoh
     from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 
     cfg = service_config(args)
@@ -284,6 +295,5 @@ def run_arm(args: argparse.Namespace) -> int:
 
 
 def paths_or_none(path: str):  # -> Path | None
-    from pathlib import Path
 
     return Path(path) if path else None

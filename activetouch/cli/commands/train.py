@@ -12,15 +12,17 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from activetouch import paths
+from activetouch.cli.main import add_common_options
 from activetouch.config import Config, load_config
 from activetouch.errors import ConfigError
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
+from activetouch.pipelines.executors import add_executor_options, check_executor
+from activetouch.planning.observation_builder import pose_spread
+from activetouch.recognition.dataset import Dataset
 from activetouch.sim.contact_probe import ContactShare, advice, dataset_shares
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
-    from activetouch.pipelines.executors import add_executor_options
 
     p = sub.add_parser("train", help="collect training grasps in the twin and fit the model")
     p.add_argument(
@@ -57,7 +59,7 @@ def train(
     executor: str = "local",
     address: str | None = None,
 ) -> Path:
-    from activetouch.pipelines.executors import check_executor
+    # deferred: loads numba
     from activetouch.pipelines.training import collect, dataset_variant, fit_and_save
 
     cfg = load_config(cfg_path, overrides)
@@ -162,7 +164,6 @@ SPREAD_ADVICE_M = 0.02
 
 def pooling_line(poses: np.ndarray, cfg: Config) -> str:
     """How far from its training poses the model's pooled poses send the hand."""
-    from activetouch.planning.observation_builder import pose_spread
 
     oc = cfg.observation
     d = pose_spread(poses, oc.translation_cell_m, oc.quaternion_cell)
@@ -184,8 +185,8 @@ def pooling_line(poses: np.ndarray, cfg: Config) -> str:
 def contact_shares(dataset: Path, names: list[str], cfg: Config) -> list[ContactShare]:
     """Per object, the share of its training grasps (at its current grid) with fewer than 3
     contacts."""
+    # deferred: loads numba
     from activetouch.pipelines.training import grid_pose_ids
-    from activetouch.recognition.dataset import Dataset
 
     ds = Dataset.open(dataset)
     return dataset_shares(ds, names, grid_pose_ids(ds, names, cfg))

@@ -13,6 +13,9 @@ from contextlib import suppress
 
 from rich.console import Console
 
+from activetouch import paths
+from activetouch.cli.main import add_common_options
+from activetouch.config import load_config
 from activetouch.errors import ConfigError
 
 DEFAULT_WEB_PORT = 9090
@@ -20,7 +23,6 @@ INSTALL_HINT = "the live view needs Rerun: pip install 'activetouch[view]' (reru
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from activetouch.cli.main import add_common_options
 
     p = sub.add_parser(
         "view",
@@ -54,18 +56,23 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from activetouch import paths
-    from activetouch.config import load_config
+    # deferred: loads numba, scipy, zenoh
     from activetouch.daemon.client import client_settings
+
+    # deferred: loads mcap, numba, scipy, zenoh
     from activetouch.daemon.process import check_service_config
+
+    # deferred: loads zenoh
     from activetouch.transport.zenoh_session import ZenohSession, loopback_endpoint
 
     try:  # optional: the `view` extra
+        # optional: rerun-sdk is the [view] extra
         import rerun as rr
 
         from activetouch.view.scene import SceneLogger, library_meshes
     except ImportError:
         raise ConfigError(INSTALL_HINT) from None
+    # deferred: loads scipy, zenoh
     from activetouch.view.live import ProgressFeed, RerunServer
 
     cfg = load_config(args.config, args.overrides)

@@ -215,6 +215,7 @@ class BarrettBH8Hand(Hand):
 
     def _open_bus(self) -> Any:
         try:
+            # deferred: python-can only for the CAN hand
             import can
         except ImportError as e:  # pragma: no cover - a dependency
             raise ConfigError(f"hand.type barrett-bh8 needs python-can ({e})") from None
@@ -371,6 +372,7 @@ class BarrettBH8Hand(Hand):
     # -- frames ---------------------------------------------------------------------------
 
     def _send(self, to: int, data: bytes, motion: bool = False) -> None:
+        # deferred: python-can only for the CAN hand
         import can
 
         with self._tx_lock:

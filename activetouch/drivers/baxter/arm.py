@@ -44,7 +44,9 @@ from activetouch.errors import (
     UnreachableError,
 )
 from activetouch.interfaces import Arm, JointLimits, JointState, JointTrajectory, StopLatch
-from activetouch.planning.motion.robot import BaxterMotionConfig
+from activetouch.planning.motion.base import workcell_placement
+from activetouch.planning.motion.baxter import BaxterWristMotion
+from activetouch.planning.motion.robot import BaxterMotionConfig, load_arm
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
@@ -151,9 +153,6 @@ class BaxterArmConfig(ArmConfig):
         """`BaxterWristMotion`: with ``emulate = "twin"`` the twin-baxter type's (placement and
         object shape from the twin world); on the robot the workcell's table and object frame
         (the object has no shape yet: transits do not avoid it)."""
-        from activetouch.planning.motion.base import workcell_placement
-        from activetouch.planning.motion.baxter import BaxterWristMotion
-        from activetouch.planning.motion.robot import load_arm
 
         wc = ctx.cfg.workcell
         # the same shared name as twin-baxter's model (sim/baxter.py BAXTER_MODEL)

@@ -222,6 +222,7 @@ class RobotState:
 
 
 def _make_typestore() -> Any:
+    # deferred: rosbags only when ROS messages are (de)serialised
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     ts = get_typestore(Stores.ROS1_NOETIC)
@@ -256,6 +257,7 @@ class Ros1Codec:
         return bytes(self._ts.serialize_ros1(msg, _store_name(ros_type)))
 
     def _de(self, ros_type: str, raw: bytes) -> Any:
+        # deferred: rosbags only when ROS messages are (de)serialised
         from rosbags.serde import SerdeError
 
         try:

@@ -38,6 +38,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from activetouch import paths
+from activetouch.calibration import store
 from activetouch.device_types import HandConfig
 from activetouch.drivers.reflex import kinematics
 from activetouch.drivers.reflex.common import (
@@ -207,9 +209,6 @@ def with_stored_zero_points(cfg: ReflexSFConfig, data: object) -> ReflexSFConfig
     """`cfg` with the stored finger calibration's zero points, when there is one and the
     configuration did not set its own (a setting given explicitly wins, and says so)."""
 
-    from activetouch import paths
-    from activetouch.calibration import store
-
     device = cfg.serial or cfg.type
     rec = store.load(paths.data_dir(data), "fingers", device)  # type: ignore[arg-type]
     if rec is None or "motor_zero_points" not in rec.values:
@@ -333,6 +332,7 @@ class ReflexSFHand(Hand):
     # -- bus ------------------------------------------------------------------------------
 
     def connect(self) -> None:
+        # deferred: the Dynamixel SDK only for the SF hand
         import dynamixel_sdk as dxl
 
         if self._port is not None:
@@ -535,6 +535,7 @@ class ReflexSFHand(Hand):
     def _write_goals(self, raw: np.ndarray, motion: bool = True) -> None:
         """Goal positions of all four servos in one SYNC_WRITE; motion writes are refused once
         stopped (checked under the bus lock `stop()` also takes)."""
+        # deferred: the Dynamixel SDK only for the SF hand
         import dynamixel_sdk as dxl
 
         raw = np.asarray(raw, dtype=np.int64)

@@ -29,6 +29,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from activetouch import paths
+from activetouch.calibration import store
+from activetouch.calibration.tactile import TactileSettings, fit_tactile
 from activetouch.device_types import HandConfig
 from activetouch.drivers.reflex import codec, kinematics
 from activetouch.drivers.reflex.common import (
@@ -41,6 +44,7 @@ from activetouch.drivers.reflex.common import (
     close_step,
     parse_address,
 )
+from activetouch.drivers.reflex.udp import open_socket
 from activetouch.errors import ActiveTouchError, ConfigError, StoppedError
 from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER, Grasp, Hand, StopLatch
 from activetouch.models.reflex import DEFAULT_GEOMETRY, sensor_positions
@@ -228,8 +232,6 @@ class FingerZero:
 def stored_calibration(device: str, data: object) -> tuple[TactileZero | None, FingerZero | None]:
     """The stored tactile and finger records of `device` (None where missing; a missing or old
     one is logged with the command that makes it)."""
-    from activetouch import paths
-    from activetouch.calibration import store
 
     root = paths.data_dir(data)  # type: ignore[arg-type]
     out: list[object] = []
@@ -434,7 +436,6 @@ class ReflexTakktileHand(Hand):
         """Open the link, wait for a plausible state packet, then arm the servos without
         moving them: goals at the measured positions, speeds, POSITION mode (once). An
         implausible reading raises `ServoFaultError` naming the servo, with nothing sent."""
-        from activetouch.drivers.reflex.udp import open_socket
 
         if self._sock is not None:
             return
@@ -553,7 +554,6 @@ class ReflexTakktileHand(Hand):
                 )
 
     def _zero_now(self, r: Reading) -> None:
-        from activetouch.calibration.tactile import TactileSettings, fit_tactile
 
         rows, ts, seq = [], [], r.seq
         for _ in range(self.cfg.zero_samples):

@@ -51,6 +51,7 @@ def table_top(
 
 def offset_along_z(target, distance: float):
     """The SE3 `target` moved by `distance` along its own z axis (negative: backwards)."""
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     return target * pin.SE3(np.eye(3), np.array([0.0, 0.0, distance]))
@@ -346,6 +347,7 @@ class BaxterWristMotion(WristMotion):
     def _lift(self, q: np.ndarray) -> np.ndarray | None:
         """`q` with the hand raised by `lift_m` in the base frame, orientation kept (IK warm
         started at `q`), collision-free with the object."""
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         pin.forwardKinematics(self.model.model, self.ik.data, q)
@@ -374,6 +376,7 @@ class BaxterWristMotion(WristMotion):
         """Where the move leaves the current grasp for: the hand backed off along -z. Right
         after a planned move that is the goal's pre-grasp (already checked); else solved now.
         Returns `q0` itself when no retreat is needed or possible from a free configuration."""
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         cfg = self.cfg

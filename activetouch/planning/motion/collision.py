@@ -15,12 +15,14 @@ from activetouch.planning.motion.robot import ArmModel
 def object_geometry(hull_points: np.ndarray | None, extents: np.ndarray | None):
     """A coal shape for the object: the convex hull of `hull_points` (object frame) if given,
     else a box of `extents` centred on the object frame."""
+    # deferred: coal only for motion planning's collision checks
     import coal
 
     if hull_points is not None:
         pts = np.asarray(hull_points, dtype=np.float64).reshape(-1, 3)
         if len(pts) < 4:
             raise ValueError("an object hull needs at least 4 points")
+        # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
         from scipy.spatial import ConvexHull
 
         verts = coal.StdVec_Vec3s()
@@ -68,7 +70,10 @@ class CollisionScene:
         self._build()
 
     def _build(self) -> None:
+        # deferred: coal only for motion planning's collision checks
         import coal
+
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         geom = self.arm.geom.copy()
@@ -125,6 +130,7 @@ class CollisionScene:
         """True if anything touches at `q`. The object counts only `with_object`; the hand
         against the object only `hand_object` (default: `with_object`), so a caller that checks
         the hand against the real object elsewhere can still check the arm against it."""
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         self._object(with_object, with_object if hand_object is None else hand_object)
@@ -134,6 +140,7 @@ class CollisionScene:
         self, q: np.ndarray, with_object: bool = True, hand_object: bool | None = None
     ) -> list[tuple[str, str]]:
         """Names of every touching pair at `q` (slow path, for error messages and tests)."""
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         self._object(with_object, with_object if hand_object is None else hand_object)
@@ -148,6 +155,7 @@ class CollisionScene:
 
     def hand_position(self) -> np.ndarray:
         """The hand origin at the last checked configuration."""
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         return np.array(

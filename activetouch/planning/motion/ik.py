@@ -59,7 +59,10 @@ class SeedTable:
         return cls(arm, rng.uniform(arm.lower, arm.upper, (n, arm.nq)))
 
     def add(self, q: np.ndarray) -> None:
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
+
+        # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
         from scipy.spatial import cKDTree
 
         q = np.atleast_2d(np.asarray(q, dtype=np.float64)).reshape(-1, self.arm.nq)
@@ -110,6 +113,7 @@ class IKSolver:
 
     def descend(self, target, q0: np.ndarray) -> tuple[np.ndarray, float, int]:
         """DLS from `q0` towards `target` (pinocchio SE3, base frame): (q, error norm, iters)."""
+        # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
 
         model, data, f = self.arm.model, self.data, self.arm.hand_frame

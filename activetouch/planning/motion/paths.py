@@ -80,6 +80,7 @@ def rrt_connect(
     """A collision-free joint path q0 -> q1 (waypoints, re-checked densely) from OMPL's
     RRT-Connect with the coal check as validity: the shortcut path, else the raw one; None if
     none passes within `time_s`."""
+    # deferred: OMPL only when a joint path is planned
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou

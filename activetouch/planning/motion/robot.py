@@ -185,7 +185,10 @@ def _box_geometry(pin, coal, name: str, joint: int, frame: int, hand_placement, 
 
 def load_arm(cfg: BaxterMotionConfig | None = None) -> ArmModel:
     """Load Baxter, reduce it to `cfg.side`'s arm and attach the ReFlex at the hand mount."""
+    # deferred: coal only for motion planning's collision checks
     import coal
+
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     cfg = cfg or BaxterMotionConfig()
@@ -263,6 +266,7 @@ def _adjacent(model, joint: int) -> set[int]:
 def _set_pairs(geom, hand_ids: list[int], skip_joints: set[int]) -> None:
     """Keep only pairs that can change: drop those between two bodies fixed to the world; add
     the hand against every link not next to it."""
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     objs = geom.geometryObjects
@@ -282,6 +286,7 @@ def _set_pairs(geom, hand_ids: list[int], skip_joints: set[int]) -> None:
 
 def fk(arm: ArmModel, data, q: np.ndarray, frame: int | None = None):
     """pinocchio SE3 of `frame` (default: the hand frame) at `q`, in the base frame."""
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     f = arm.hand_frame if frame is None else frame
@@ -292,12 +297,14 @@ def fk(arm: ArmModel, data, q: np.ndarray, frame: int | None = None):
 def se3_to_pose(m) -> Pose:
     """A pinocchio SE3 as a Pose (pinocchio's quaternion: scipy's `from_matrix` costs ~0.5 ms
     here, which the twin pays at every checked sample)."""
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     return Pose(np.array(m.translation), np.array(pin.Quaternion(m.rotation).coeffs()))
 
 
 def pose_to_se3(pose: Pose):
+    # deferred: pinocchio only for arm kinematics and motion
     import pinocchio as pin
 
     return pin.SE3(Rotation.from_quat(pose.quat).as_matrix(), np.asarray(pose.xyz))

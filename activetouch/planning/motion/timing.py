@@ -54,6 +54,7 @@ def rest_to_rest(
 
     (ruckig's own multi-DoF phase synchronisation falls back to time synchronisation, which
     leaves the straight line, for most 7-DoF pairs: measured up to 0.17 rad off the line.)"""
+    # deferred: ruckig only when a trajectory is timed
     import ruckig
 
     q0 = np.asarray(q0, dtype=np.float64)
