@@ -436,20 +436,28 @@ class BarrettBH8Hand(Hand):
                 continue
             if msg is None:
                 continue
+            # received and its verdict are counted under one lock so stats() never sees a
+            # frame received but not yet classified
             try:
-                self._on_frame(msg)
+                verdict = self._on_frame(msg)
             except codec.FrameError as e:
                 with self._cond:
+                    self.counts["received"] += 1
                     self.counts["refused"] += 1
                     self.refused_by_reason[e.reason] = self.refused_by_reason.get(e.reason, 0) + 1
             except Exception:  # never end the receive thread on a frame
                 with self._cond:
+                    self.counts["received"] += 1
                     self.counts["crashes"] += 1
                 log.exception("BH8: frame %s crashed the decoder", msg)
+            else:
+                with self._cond:
+                    self.counts["received"] += 1
+                    self.counts[verdict] += 1
 
-    def _on_frame(self, msg: Any) -> None:
-        with self._cond:
-            self.counts["received"] += 1
+    def _on_frame(self, msg: Any) -> str:
+        """Decode one frame into the hand's state; returns "accepted" or "ignored", raises
+        FrameError for a frame that cannot be right."""
         if msg.is_error_frame or msg.is_remote_frame:
             raise codec.FrameError("frame_type", "error or remote frame")
         if msg.is_extended_id:
@@ -457,9 +465,7 @@ class BarrettBH8Hand(Hand):
         b = codec.decode_bus_id(msg.arbitration_id)
         data = bytes(msg.data)
         if b.src not in self.pucks or not b.group:
-            with self._cond:
-                self.counts["ignored"] += 1
-            return
+            return "ignored"
         i = codec.HAND_PUCKS.index(b.src)
         now = time.monotonic()
         if b.dst == codec.FGRP_POSITION:
@@ -485,11 +491,8 @@ class BarrettBH8Hand(Hand):
                 if cells is not None:
                     self._cells[24 * i : 24 * i + 24] = cells
         else:
-            with self._cond:
-                self.counts["ignored"] += 1
-            return
-        with self._cond:
-            self.counts["accepted"] += 1
+            return "ignored"
+        return "accepted"
 
     def _poll_loop(self) -> None:
         period = self.cfg.control_period_s
