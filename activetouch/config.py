@@ -240,6 +240,11 @@ class SessionConfig:
     stable_grasps: int = 3  # ... for this many grasps in a row
     max_moves: int = 20  # grasps, the first random one included
     max_skips: int = 50  # unreachable poses tolerated before giving up
+    # At the start, with the hand open: this many readings measure each sensor's rest level
+    # and noise; a sensor in contact in most of them is ignored (stuck), and a contact counts
+    # only above rest + noise_k sigma (or the hand's own threshold, whichever is higher).
+    rest_readings: int = 20
+    noise_k: float = 5.0
 
 
 @dataclass

@@ -260,6 +260,13 @@ class Hand(abc.ABC):
         caller drops their contacts from the grasps itself)."""
         return False
 
+    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
+        """Per-sensor contact thresholds (38, sensor units) measured from the noise at rest:
+        a sensor counts as in contact only above its own and the hand's configured threshold,
+        for stopping a finger and in the grasps, until set again. False: this hand cannot
+        (the caller then drops the contacts under them from the grasps itself)."""
+        return False
+
     @abc.abstractmethod
     def stop(self) -> None:
         """Halt the fingers now, from any thread, also during `guarded_close`; motion commands
@@ -359,6 +366,9 @@ class HandWrapper(Hand):
 
     def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
         return self.inner.mask_sensors(sensor_ids)
+
+    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
+        return self.inner.set_contact_thresholds(thresholds)
 
     def stop(self) -> None:
         self.inner.stop()

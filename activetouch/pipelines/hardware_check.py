@@ -225,6 +225,10 @@ def check_arm(cfg: Config, ctx: DeviceContext, seconds: float) -> list[Step]:
         robot_state = getattr(arm, "robot_state", None)
         if callable(robot_state):
             rs = robot_state()
+            deadline = time.monotonic() + 2.0  # one late message is not "no /robot/state"
+            while rs is None and time.monotonic() < deadline:
+                time.sleep(0.02)
+                rs = robot_state()
             if rs is None:
                 steps.append(
                     Step(

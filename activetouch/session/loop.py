@@ -130,6 +130,41 @@ def without_sensors(grasp: Grasp, sensor_ids: np.ndarray) -> Grasp:
     )
 
 
+def above_thresholds(grasp: Grasp, thresholds: np.ndarray) -> Grasp:
+    """`grasp` without the contacts at or under their sensor's threshold (38 values)."""
+    keep = grasp.pressures > thresholds[grasp.sensor_ids]
+    if keep.all():
+        return grasp
+    return without_sensors(grasp, grasp.sensor_ids[~keep])
+
+
+@dataclass(frozen=True)
+class RestLevels:
+    """What the sensors read with the hand open: per-sensor mean and standard deviation of
+    the pressures, and the fraction of readings in contact."""
+
+    mean: np.ndarray  # (38,)
+    std: np.ndarray  # (38,)
+    contact: np.ndarray  # (38,) in 0..1
+    readings: int
+
+
+def rest_levels(pressures: np.ndarray, contact: np.ndarray) -> RestLevels:
+    """From (n, 38) pressures and contact flags read at rest."""
+    p = np.asarray(pressures, dtype=np.float64)
+    c = np.asarray(contact, dtype=bool)
+    std = p.std(axis=0, ddof=1) if len(p) > 1 else np.zeros(p.shape[1])
+    return RestLevels(p.mean(axis=0), std, c.mean(axis=0), len(p))
+
+
+def noise_thresholds(rest: RestLevels, k: float) -> np.ndarray:
+    """Per-sensor contact thresholds: the rest level plus `k` sigma. Each sensor's sigma is
+    at least the median over the sensors, so a few readings that happen to agree do not give
+    one sensor a hair trigger."""
+    sigma = np.maximum(rest.std, float(np.median(rest.std)))
+    return rest.mean + float(k) * sigma
+
+
 def display_label(label: str) -> str:
     return label if label != NO_LABEL else "nothing (no triangle felt)"
 
@@ -274,16 +309,42 @@ class RecognitionSession:
         self._likelihood = grasp_likelihood_of(model, recognition)
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
+        self._thresholds: np.ndarray | None = None
+
+    def _read_at_rest(self) -> RestLevels:
+        """`session.rest_readings` distinct hand states (new stamps), the hand open; a hand
+        that streams slower than asked gives what it gave within 2 s."""
+        n = max(1, int(self.cfg.rest_readings))
+        pressures, contact = [], []
+        last = None
+        deadline = time.monotonic() + 2.0  # a stalled stream is the grasp's error, not this one's
+        while len(pressures) < n:
+            st = self.hand.state()
+            if st.stamp != last:
+                last = st.stamp
+                pressures.append(np.asarray(st.pressures, dtype=np.float64))
+                contact.append(np.asarray(st.contact, dtype=bool))
+            elif time.monotonic() > deadline:
+                break
+            else:
+                time.sleep(0.002)  # a real hand streams at 40 Hz: wait for its next reading
+        return rest_levels(np.array(pressures), np.array(contact))
 
     def _mask_at_rest(self) -> list[int]:
-        """Open the hand, away from the object, and ignore the sensors that read contact
-        then, for this recognition: by the hand where it can (no finger stops on them), and
-        here in any case (their contacts are dropped from every grasp)."""
+        """Open the hand, away from the object, read its sensors at rest, and for this
+        recognition ignore those in contact in most readings (stuck: by the hand where it can,
+        so no finger stops on them, and here in any case) and count a contact only above the
+        sensor's rest level plus `session.noise_k` sigma."""
         self._hand(self.hand.open)
-        st = self.hand.state()
-        ids = np.flatnonzero(np.asarray(st.contact, dtype=bool)).astype(np.int64)
+        rest = self._read_at_rest()
+        ids = np.flatnonzero(rest.contact > 0.5).astype(np.int64)
         self._masked = ids
         self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
+        self._thresholds = None
+        if rest.readings > 1:
+            thr = noise_thresholds(rest, self.cfg.noise_k)
+            self.hand.set_contact_thresholds(thr.tolist())
+            self._thresholds = thr
         if ids.size:
             log.warning(
                 "sensors %s read contact with the hand open: ignored for this recognition",
@@ -315,6 +376,8 @@ class RecognitionSession:
         self._hand(self.hand.open)
         if self._masked.size:
             grasp = without_sensors(grasp, self._masked)
+        if self._thresholds is not None:
+            grasp = above_thresholds(grasp, self._thresholds)
         if self.support_z is not None:
             grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)
         return grasp, pose

@@ -152,6 +152,8 @@ class SimHand(Hand):
         self.last_close: CloseResult | None = None
         self.stop_latch = StopLatch()
         self.masked = np.zeros(N_SENSORS, dtype=bool)  # `mask_sensors`: ignored sensors
+        # Per-sensor contact thresholds (`set_contact_thresholds`), never under the configured.
+        self.thresholds = np.full(N_SENSORS, float(self.cfg.contact_threshold))
         self._robot_seconds = 0.0
 
     @property
@@ -176,6 +178,13 @@ class SimHand(Hand):
             raise ValueError(f"sensor ids must be 0..{N_SENSORS - 1}, got {ids.tolist()}")
         self.masked = np.zeros(N_SENSORS, dtype=bool)
         self.masked[ids] = True
+        return True
+
+    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
+        t = np.asarray(list(thresholds), dtype=np.float64)
+        if t.shape != (N_SENSORS,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"contact thresholds must be {N_SENSORS} finite values")
+        self.thresholds = np.maximum(t, float(self.cfg.contact_threshold))
         return True
 
     def reseed(self, seed: int) -> None:
@@ -213,7 +222,7 @@ class SimHand(Hand):
         w = self.world
         return HandState(
             pressures=pressures,
-            contact=pressures > self.cfg.contact_threshold,
+            contact=pressures > self.thresholds,
             finger_angles=w.proximal,
             preshape=w.preshape_angle,
             stamp=time.monotonic(),
@@ -226,7 +235,7 @@ class SimHand(Hand):
         self.stop_latch.check("guarded close")
         cfg, w = self.cfg, self.world
         rng = self._grasp_rng()
-        thr = cfg.contact_threshold
+        thr = self.thresholds
         step, fine_step = cfg.spool_step_rad, cfg.spool_step_rad / cfg.substeps
         limit = cfg.spool_limit_rad
         stall = cfg.stall_depth_m

@@ -150,3 +150,64 @@ def test_bad_error_settings_name_the_setting(box):
         open_twin(None, load_config(None, ["sim.fault_dead=40"]).sim),
     ):
         pass
+
+
+def test_noise_thresholds_from_rest_readings_by_hand():
+    from activetouch.session.loop import noise_thresholds, rest_levels
+
+    p = np.zeros((4, 38))
+    p[:, 0] = [10.0, 12.0, 14.0, 12.0]  # mean 12, sample std 1.633
+    p[:, 1] = [1.0, 1.0, 1.0, 1.0]  # agrees by chance: gets the median sigma, not a hair trigger
+    p[:, 2:] = np.array([0.0, 2.0, 0.0, 2.0])[:, None]  # std 1.1547 each: the median
+    contact = np.zeros((4, 38), dtype=bool)
+    contact[:3, 5] = True  # in contact in 3 of 4 readings
+    rest = rest_levels(p, contact)
+    assert rest.readings == 4 and rest.contact[5] == 0.75 and rest.contact[6] == 0.0
+    thr = noise_thresholds(rest, k=5.0)
+    assert thr[0] == pytest.approx(12.0 + 5.0 * np.std([10, 12, 14, 12], ddof=1))
+    assert thr[1] == pytest.approx(1.0 + 5.0 * np.std([0, 2, 0, 2], ddof=1))
+    assert thr[7] == pytest.approx(1.0 + 5.0 * np.std([0, 2, 0, 2], ddof=1))
+
+
+def test_above_thresholds_drops_only_the_contacts_under_their_sensor():
+    from activetouch.interfaces import Grasp
+    from activetouch.session.loop import above_thresholds
+
+    ids = np.array([3, 9, 30])
+    g = Grasp(
+        sensor_ids=ids,
+        xyz=np.arange(9, dtype=float).reshape(3, 3),
+        pressures=np.array([20.0, 5.0, 50.0]),
+        finger_angles=np.zeros(3),
+        preshape=0.0,
+    )
+    thr = np.full(38, 10.0)
+    thr[30] = 60.0
+    kept = above_thresholds(g, thr)
+    assert kept.sensor_ids.tolist() == [3]
+    assert kept.xyz.tolist() == [[0.0, 1.0, 2.0]]
+    assert above_thresholds(g, np.zeros(38)) is g  # nothing under: the grasp as it was
+
+
+def test_noisy_sensors_read_at_rest_set_thresholds_that_silence_them():
+    # noise +10 sensor units: the configured threshold trips on the empty table; thresholds set
+    # from 20 readings at rest (rest + 5 sigma) do not, and every finger closes.
+    cfg = load_config(None, ["sim.fault_noise_std=10"])
+    from activetouch.session.loop import noise_thresholds, rest_levels
+
+    with open_twin(None, cfg.sim, seed=3) as twin:
+        hand = twin.hand
+        hand.open()
+        spurious = sum(int(hand.state().contact.sum()) for _ in range(20))
+        assert spurious > 0
+        states = [hand.state() for _ in range(20)]
+        rest = rest_levels(
+            np.array([s.pressures for s in states]), np.array([s.contact for s in states])
+        )
+        assert hand.set_contact_thresholds(noise_thresholds(rest, 5.0).tolist())
+        assert sum(int(hand.state().contact.sum()) for _ in range(50)) == 0
+        g = hand.guarded_close()
+        assert g.sensor_ids.size == 0
+        assert (g.finger_angles > 0.1).all()
+        with pytest.raises(ValueError):
+            hand.set_contact_thresholds([1.0] * 5)

@@ -33,7 +33,8 @@ def test_check_names_the_bridge_format_and_the_robot_state(
     assert steps[("arm", "joint states")]["status"] in ("ok", "warn")
     state = steps[("arm", "robot state")]
     if enabled:
-        assert rc == 0 and state["status"] == "ok" and state["detail"] == "enabled"
+        bad = {k: v for k, v in steps.items() if v["status"] == "fail"}
+        assert rc == 0 and state["status"] == "ok" and state["detail"] == "enabled", bad
     else:
         assert rc == 1 and state["status"] == "fail" and "enable" in state["fix"]
 
