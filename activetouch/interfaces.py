@@ -260,6 +260,11 @@ class Hand(abc.ABC):
         caller drops their contacts from the grasps itself)."""
         return False
 
+    def sensor_flags(self) -> dict[int, str]:
+        """Sensor id -> the flag its tactile calibration gave it (``dead``, ``saturated``,
+        ``noisy``, ``drifting``); empty for a hand with none applied."""
+        return {}
+
     def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
         """Per-sensor contact thresholds (38, sensor units) measured from the noise at rest:
         a sensor counts as in contact only above its own and the hand's configured threshold,
@@ -369,6 +374,9 @@ class HandWrapper(Hand):
 
     def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
         return self.inner.set_contact_thresholds(thresholds)
+
+    def sensor_flags(self) -> dict[int, str]:
+        return self.inner.sensor_flags()
 
     def stop(self) -> None:
         self.inner.stop()

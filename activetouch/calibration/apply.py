@@ -35,7 +35,9 @@ def load_into(
             continue
         path = store.record_path(root, kind, device)
         if kind == "tactile":
-            ok = apply_tactile(hand, rec.values["zero"], rec.values["threshold"])
+            ok = apply_tactile(
+                hand, rec.values["zero"], rec.values["threshold"], rec.values.get("flags")
+            )
         elif kind == "fingers":
             ok = apply_fingers(hand, rec.values["motor_zero_rad"], rec.values["encoder_zero_rad"])
         else:

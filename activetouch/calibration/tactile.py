@@ -10,8 +10,10 @@ estimate, and one glitch becomes the zero. Here the hand is open and untouched f
   now); sigma = their standard deviation about the line;
 - threshold = max(minimum, k * sigma) (+ the drift over the window for a drifting sensor);
 - flags: ``dead`` (no variation at all, or stuck at 0), ``saturated`` (at the top of the
-  range), ``drifting`` (the line moves more than `drift_counts` and 5 standard errors). Dead
-  and saturated sensors get the disabling threshold `raw_max`, so they never report contact.
+  range), ``drifting`` (the line moves more than `drift_counts` and 5 standard errors),
+  ``noisy`` (sigma over `noisy_factor` times the median of the unflagged sensors). Dead
+  and saturated sensors get the disabling threshold `raw_max`, so they never report contact;
+  a recognition ignores the dead, saturated and noisy ones (`Hand.sensor_flags`).
 
 Before it stores anything it refuses when something seems to touch the hand: a sensor reading
 far above its previous zero, fingers not open, or a stale stream.
@@ -41,6 +43,7 @@ class TactileSettings:
     min_threshold: float = 20.0  # the ReFlex driver's default contact threshold
     raw_max: float = 65535.0  # a uint16 reading; also the disabling threshold
     drift_counts: float = 3.0  # drift over the window must exceed this (and 5 s.e.) to flag
+    noisy_factor: float = 5.0  # sigma over this many times the median sigma: noisy
     touch_counts: float = 50.0  # a sensor this far above its previous zero: touching
     touch_thresholds: float = 3.0  # ... or this many of its previous thresholds
     open_tolerance_rad: float = 0.15  # fingers must read within this of open
@@ -57,6 +60,7 @@ class TactileFit:
     dead: list[int] = field(default_factory=list)
     saturated: list[int] = field(default_factory=list)
     drifting: list[int] = field(default_factory=list)
+    noisy: list[int] = field(default_factory=list)
     outliers: np.ndarray = field(default_factory=lambda: np.zeros(N_SENSORS, dtype=int))
     n_samples: int = 0
     window_s: float = 0.0
@@ -126,6 +130,12 @@ def fit_tactile(t: np.ndarray, samples: np.ndarray, settings: TactileSettings) -
         zero[i], sigma[i], drift[i], outliers[i] = z, s, d, nout
         if flag:
             flags[flag].append(i)
+    flagged = set(flags["dead"] + flags["saturated"] + flags["drifting"])
+    good = [i for i in range(m) if i not in flagged]
+    typical = float(np.median(sigma[good])) if good else 0.0
+    noisy = [
+        i for i in good if typical > 0 and sigma[i] > settings.noisy_factor * max(typical, 0.5)
+    ]
     threshold = np.maximum(settings.min_threshold, settings.k_sigma * sigma)
     threshold[flags["drifting"]] += np.abs(drift[flags["drifting"]])
     disabled = flags["dead"] + flags["saturated"]
@@ -139,6 +149,7 @@ def fit_tactile(t: np.ndarray, samples: np.ndarray, settings: TactileSettings) -
         dead=flags["dead"],
         saturated=flags["saturated"],
         drifting=flags["drifting"],
+        noisy=noisy,
         outliers=outliers,
         n_samples=n,
         window_s=float(np.ptp(t)) if n > 1 else 0.0,
@@ -216,12 +227,42 @@ def sample_raw(hand: Hand, duration_s: float, poll_s: float = 0.004) -> tuple[np
     return np.asarray(ts), np.stack(rows), np.median(np.stack(angles), axis=0)
 
 
-def apply_tactile(hand: Hand, zero: np.ndarray, threshold: np.ndarray) -> bool:
+def rec_flags(fit: TactileFit) -> dict[str, list[int]]:
+    """The fit's flags as stored: flag -> sensor ids."""
+    return {
+        "dead": fit.dead,
+        "saturated": fit.saturated,
+        "drifting": fit.drifting,
+        "noisy": fit.noisy,
+    }
+
+
+def flags_by_sensor(flags: dict[str, list[int]] | None) -> dict[int, str]:
+    """Stored flags (flag -> ids) as sensor id -> flag; unknown flags (a newer file's, or
+    upstream's ``not_imported``) are kept under their own names."""
+    out: dict[int, str] = {}
+    for flag, ids in (flags or {}).items():
+        for i in ids:
+            out.setdefault(int(i), str(flag))
+    return dict(sorted(out.items()))
+
+
+def apply_tactile(
+    hand: Hand,
+    zero: np.ndarray,
+    threshold: np.ndarray,
+    flags: dict[str, list[int]] | None = None,
+) -> bool:
     """Make a live driver use these offsets and thresholds (the ReFlex TakkTile driver reads
-    them on every packet). False if the hand has no such settings (the twin)."""
+    them on every packet) and know the flagged sensors. False if the hand has no such
+    settings (the twin)."""
     setter = getattr(hand, "set_tactile_calibration", None)
     if setter is not None:
-        setter(np.asarray(zero, dtype=np.float64), np.asarray(threshold, dtype=np.float64))
+        setter(
+            np.asarray(zero, dtype=np.float64),
+            np.asarray(threshold, dtype=np.float64),
+            flags=flags_by_sensor(flags),
+        )
         wait_new_states(hand, 2)  # readings decoded before now still hold the old zero
         return True
     if hasattr(hand, "offsets") and hasattr(hand, "thresholds"):
@@ -280,7 +321,7 @@ def calibrate_tactile(
             "threshold": _rounded(fit.threshold, 3),
             "sigma": _rounded(fit.sigma, 4),
             "drift": _rounded(fit.drift, 3),
-            "flags": {"dead": fit.dead, "saturated": fit.saturated, "drifting": fit.drifting},
+            "flags": rec_flags(fit),
         },
         quality={
             "n_samples": fit.n_samples,
@@ -291,7 +332,7 @@ def calibrate_tactile(
                 float(np.max(fit.sigma)) / np.sqrt(max(1, fit.n_samples)), 4
             ),
             "outlier_samples": int(fit.outliers.sum()),
-            "n_flagged": len(fit.dead) + len(fit.saturated) + len(fit.drifting),
+            "n_flagged": len(flags_by_sensor(rec_flags(fit))),
         },
         method={
             "procedure": "tactile",

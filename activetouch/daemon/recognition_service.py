@@ -795,6 +795,7 @@ class RecognitionService:
             search_s=res.search_s,
             total_s=max(0.0, res.total_s),
             masked_sensors=list(res.masked_sensors),
+            masked_reasons={str(i): w for i, w in res.masked_reasons.items()},
         )
 
     def _stop_recognitions(self) -> None:

@@ -124,11 +124,15 @@ class GraspLikelihood:
             len(per_object),
         )
 
-    def log_likelihood(self, grasp: Grasp, pose: Pose, params: LikelihoodParams) -> np.ndarray:
-        """log p(grasp | y, pose) for every class y (K,)."""
+    def log_likelihood(
+        self, grasp: Grasp, pose: Pose, params: LikelihoodParams, ignore: np.ndarray | None = None
+    ) -> np.ndarray:
+        """log p(grasp | y, pose) for every class y (K,). `ignore`: sensor ids left out of
+        the comparison on both sides (masked this recognition: what they say is not known)."""
         x = np.concatenate([np.asarray(pose.xyz, float), np.asarray(pose.quat, float)])
         mask = np.array([sensor_mask(grasp.sensor_ids)], dtype=np.uint64)
-        return self._log_likelihood_many(mask, finger_closure(grasp)[None], x, params)[0]
+        keep = ~sensor_mask(ignore) if ignore is not None and len(ignore) else None
+        return self._log_likelihood_many(mask, finger_closure(grasp)[None], x, params, keep)[0]
 
     def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
         """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a
@@ -152,13 +156,22 @@ class GraspLikelihood:
         return cache[params]
 
     def _log_likelihood_many(
-        self, masks: np.ndarray, closure: np.ndarray, x: np.ndarray, params: LikelihoodParams
+        self,
+        masks: np.ndarray,
+        closure: np.ndarray,
+        x: np.ndarray,
+        params: LikelihoodParams,
+        keep: np.uint64 | None = None,
     ) -> np.ndarray:
-        """(n, K) log-likelihoods of n grasps (masks (n,), closure (n, 3)) all made at `x`."""
+        """(n, K) log-likelihoods of n grasps (masks (n,), closure (n, 3)) all made at `x`;
+        `keep`: the sensor bits compared (all if None)."""
         w = pose_weights(self.poses, x, params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg))
         near = np.flatnonzero(w > _WEIGHT_CUTOFF)
         w = w[near]
-        ham = np.bitwise_count(self.masks[near][None, :] ^ masks[:, None]).astype(float)
+        diff = self.masks[near][None, :] ^ masks[:, None]
+        if keep is not None:
+            diff = diff & keep
+        ham = np.bitwise_count(diff).astype(float)
         dth = np.sum((self.closure[near][None, :, :] - closure[:, None, :]) ** 2, axis=2)
         k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
         onehot = np.zeros((len(near), self.n_classes))

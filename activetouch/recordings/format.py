@@ -116,6 +116,7 @@ JSON_TOPICS: dict[str, tuple[str, dict]] = {
                 "pressures": _nums,
                 "finger_angles": _nums,
                 "preshape": _num,
+                "ignored_sensors": _ints,
             },
             ["move", "pose_id", "pose", "sensor_ids", "xyz", "pressures", "finger_angles"],
         ),

@@ -127,9 +127,11 @@ class RecordingWriter(McapFile):
         label: str,
         felt: bool,
         robot_time: dict[str, float],
+        ignored: np.ndarray | None = None,
     ) -> None:
         """One grasp (an `interfaces.Grasp`, hand frame, as the session observed it), the
-        belief after it and the robot seconds so far; then the chunk is written out."""
+        belief after it and the robot seconds so far; then the chunk is written out.
+        `ignored`: the sensors masked this recognition (replay leaves them out alike)."""
         ns = time.time_ns()
         p = np.asarray(probabilities, dtype=np.float64)
         self._json(
@@ -143,6 +145,7 @@ class RecordingWriter(McapFile):
                 "pressures": grasp.pressures,
                 "finger_angles": grasp.finger_angles,
                 "preshape": float(grasp.preshape),
+                "ignored_sensors": [] if ignored is None else [int(i) for i in ignored],
             },
             ns,
         )

@@ -42,7 +42,7 @@ from activetouch.errors import (
     PlanningInterruptedError,
     UnreachableError,
 )
-from activetouch.interfaces import Grasp, Hand, Pose
+from activetouch.interfaces import N_SENSORS, Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
@@ -98,9 +98,11 @@ class RecognitionResult:
     unreachable: int = 0  # poses the wrist's `reachable()` ruled out before the first grasp
     reachability_s: float = 0.0  # that check (wall seconds; once per placement, not per grasp)
     robot_s: list[float] = field(default_factory=list)  # total_s so far, after each grasp
-    # Sensors that read contact with the hand open before the first grasp (they cannot be
-    # touched: stuck, or a zero that drifted): ignored for the whole recognition.
+    # Sensors ignored for the whole recognition, and why: flagged by the hand's tactile
+    # calibration, in contact with the hand open before the first grasp (they cannot be
+    # touched: stuck, or a zero that drifted), or reading nothing at all at rest (dead).
     masked_sensors: list[int] = field(default_factory=list)
+    masked_reasons: dict[int, str] = field(default_factory=dict)
 
     @property
     def moves(self) -> int:
@@ -155,6 +157,31 @@ def rest_levels(pressures: np.ndarray, contact: np.ndarray) -> RestLevels:
     c = np.asarray(contact, dtype=bool)
     std = p.std(axis=0, ddof=1) if len(p) > 1 else np.zeros(p.shape[1])
     return RestLevels(p.mean(axis=0), std, c.mean(axis=0), len(p))
+
+
+def dead_at_rest(rest: RestLevels) -> np.ndarray:
+    """Sensors that read exactly the same value in every rest reading while most sensors
+    show their noise: dead (a hand whose readings are all flat, like a fake one, has none)."""
+    if rest.readings < 5 or np.mean(rest.std > 0) < 0.75:
+        return np.zeros(0, dtype=np.int64)
+    return np.flatnonzero((rest.std == 0) & (rest.contact == 0)).astype(np.int64)
+
+
+# The tactile calibration's flags that mask a sensor in recognition ("drifting" sensors keep
+# working: their threshold already carries the drift).
+MASKING_FLAGS = ("dead", "saturated", "noisy")
+
+
+def mask_reasons(
+    flags: dict[int, str], rest: RestLevels, n_sensors: int = N_SENSORS
+) -> dict[int, str]:
+    """Sensor id -> why it is ignored this recognition, in ascending id order."""
+    why = {int(i): f"{f} (tactile calibration)" for i, f in flags.items() if f in MASKING_FLAGS}
+    for i in np.flatnonzero(rest.contact > 0.5):
+        why.setdefault(int(i), "in contact with the hand open")
+    for i in dead_at_rest(rest):
+        why.setdefault(int(i), "reads nothing at rest (dead)")
+    return {i: why[i] for i in sorted(why) if 0 <= i < n_sensors}
 
 
 def noise_thresholds(rest: RestLevels, k: float) -> np.ndarray:
@@ -212,6 +239,7 @@ class SessionRecorder(Protocol):
         label: str,
         felt: bool,
         robot_time: dict[str, float],
+        ignored: np.ndarray | None = None,
     ) -> None: ...
 
 
@@ -251,9 +279,13 @@ class BeliefTracker:
     def log_belief(self) -> np.ndarray | None:
         return None if self.likelihood is None else self._log_b
 
-    def update(self, grasp: Grasp, pose: Pose) -> tuple[np.ndarray, bool, np.ndarray]:
+    def update(
+        self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None
+    ) -> tuple[np.ndarray, bool, np.ndarray]:
         """(p(y | ...), whether anything was felt that tells classes apart, the grasp's
-        observation cells) after adding `grasp`, made at wrist `pose` (object frame)."""
+        observation cells) after adding `grasp`, made at wrist `pose` (object frame).
+        `ignore`: the sensors masked this recognition; the likelihood compares the others only
+        (the histogram has no per-sensor part: their contacts are already dropped)."""
         tris = self.model.triangles(grasp.xyz)
         add = self.model.spec.counts(tris)
         cells = self.model.observation.cells_of(tris)
@@ -264,7 +296,7 @@ class BeliefTracker:
             felt = bool(self.counts.any())
         else:
             model_l, params = self.likelihood
-            self._log_b = self._log_b + model_l.log_likelihood(grasp, pose, params)
+            self._log_b = self._log_b + model_l.log_likelihood(grasp, pose, params, ignore)
             p = softmax_belief(self._log_b)
             felt = bool(np.ptp(p) > 1e-12)  # even an empty grasp may tell classes apart
         return p, felt, cells
@@ -330,14 +362,16 @@ class RecognitionSession:
                 time.sleep(0.002)  # a real hand streams at 40 Hz: wait for its next reading
         return rest_levels(np.array(pressures), np.array(contact))
 
-    def _mask_at_rest(self) -> list[int]:
+    def _mask_at_rest(self) -> dict[int, str]:
         """Open the hand, away from the object, read its sensors at rest, and for this
-        recognition ignore those in contact in most readings (stuck: by the hand where it can,
-        so no finger stops on them, and here in any case) and count a contact only above the
+        recognition ignore those its tactile calibration flagged, those in contact in most
+        readings (stuck) and those that read nothing (dead): by the hand where it can, so no
+        finger stops on them, and here in any case; and count a contact only above the
         sensor's rest level plus `session.noise_k` sigma."""
         self._hand(self.hand.open)
         rest = self._read_at_rest()
-        ids = np.flatnonzero(rest.contact > 0.5).astype(np.int64)
+        why = mask_reasons(self.hand.sensor_flags(), rest)
+        ids = np.array(sorted(why), dtype=np.int64)
         self._masked = ids
         self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
         self._thresholds = None
@@ -345,12 +379,12 @@ class RecognitionSession:
             thr = noise_thresholds(rest, self.cfg.noise_k)
             self.hand.set_contact_thresholds(thr.tolist())
             self._thresholds = thr
-        if ids.size:
+        if why:
             log.warning(
-                "sensors %s read contact with the hand open: ignored for this recognition",
-                ids.tolist(),
+                "sensors ignored for this recognition: %s",
+                "; ".join(f"{i} {w}" for i, w in why.items()),
             )
-        return ids.tolist()
+        return why
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
         """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
@@ -434,7 +468,8 @@ class RecognitionSession:
         res = RecognitionResult(label="", probability=0.0)
         self._grasp_s = 0.0
         clock0 = motion_clock(self.wrist)
-        res.masked_sensors = self._mask_at_rest()
+        res.masked_reasons = self._mask_at_rest()
+        res.masked_sensors = list(res.masked_reasons)
         # Unreachable poses are visited from the start: never a first grasp, never planned.
         visited: list[int] = self._unreachable(res)
         self._travel_costs()
@@ -447,7 +482,7 @@ class RecognitionSession:
         def observe(pose_id: int, grasp: Grasp, pose: Pose) -> None:
             nonlocal state, streak
             visited.append(pose_id)
-            p, felt, cells = belief.update(grasp, pose)
+            p, felt, cells = belief.update(grasp, pose, self._masked)
             state = PlanningState(
                 pose=pose_id,
                 visited=np.array(visited, dtype=np.int64),
@@ -479,6 +514,7 @@ class RecognitionSession:
                         "total_s": res.total_s,
                         "elapsed_s": time.perf_counter() - t0,
                     },
+                    ignored=self._masked,
                 )
             # Consecutive confident grasps agreeing on the same top class.
             if p[best] < self.cfg.confidence or not felt:

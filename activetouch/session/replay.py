@@ -68,7 +68,8 @@ def replay(rec: Recording, model: TrainedModel) -> Replay:
             finger_angles=np.asarray(g["finger_angles"], dtype=np.float64),
             preshape=float(g.get("preshape", 0.0)),
         )
-        p, felt, _ = belief.update(grasp, Pose.from_array(np.asarray(g["pose"])))
+        ignore = np.asarray(g.get("ignored_sensors") or [], dtype=np.int64)
+        p, felt, _ = belief.update(grasp, Pose.from_array(np.asarray(g["pose"])), ignore)
         out.labels.append(names[int(np.argmax(p))] if felt else NO_LABEL)
         out.probabilities.append([float(v) for v in p])
     for b in rec.beliefs[: len(rec.grasps)]:

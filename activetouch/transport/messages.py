@@ -361,8 +361,10 @@ class RecognizeResult(Message, kw_only=True):
     grasp_s: NonNegFloat = 0.0  # the hand's open / preshape / guarded close
     search_s: NonNegFloat = 0.0  # the policy's search alone (part of planning_s)
     total_s: NonNegFloat = 0.0  # robot time: motion_s + grasp_s + planning_s
-    # Sensors read in contact with the hand open before the first grasp: ignored throughout.
+    # Sensors ignored throughout this recognition (flagged by the tactile calibration, in
+    # contact with the hand open, or dead at rest), and why: sensor id (as text) -> reason.
     masked_sensors: list[SensorId] = []
+    masked_reasons: dict[str, str] = {}
 
 
 class MotionStats(Message, kw_only=True):

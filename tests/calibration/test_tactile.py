@@ -78,6 +78,18 @@ def test_noisy_sensor_gets_a_higher_threshold():
     fit = fit_tactile(t, raw, TactileSettings(k_sigma=6.0, min_threshold=20.0))
     assert fit.threshold[20] > 40.0
     assert fit.threshold[19] == 20.0
+    assert fit.noisy == []  # 4x the others' sigma: a higher threshold, still in use
+
+
+def test_a_sensor_far_noisier_than_the_rest_is_flagged_noisy():
+    t, raw, _ = synthetic(noise=2.0, seed=4)
+    raw[:, 9] += np.random.default_rng(1).normal(0, 15.0, len(t))  # ~7.5x the others
+    raw[:, 4] = 512  # dead: its zero sigma does not lower the median
+    fit = fit_tactile(t, raw, TactileSettings())
+    assert fit.noisy == [9] and fit.dead == [4]
+    from activetouch.calibration.tactile import flags_by_sensor, rec_flags
+
+    assert flags_by_sensor(rec_flags(fit)) == {4: "dead", 9: "noisy"}
 
 
 def test_touching_reasons():
@@ -199,7 +211,12 @@ def test_independent_board_drift_and_touch_refusal():
             good = [i for i in range(38) if i not in (2, 17, 29)]
             zero = np.asarray(rec.values["zero"])
             assert np.max(np.abs(zero[good] - offsets[good])) < 1.0
-            assert rec.values["flags"] == {"dead": [2], "saturated": [29], "drifting": [17]}
+            assert rec.values["flags"] == {
+                "dead": [2],
+                "saturated": [29],
+                "drifting": [17],
+                "noisy": [],
+            }
             # Something presses on sensor 22: refused against the stored zero.
             board.extra[22] = 300.0
             with pytest.raises(CalibrationRefusedError, match="sensor 22"):
@@ -219,6 +236,8 @@ def test_load_into_applies_stored_records_and_warns_when_missing(emulated, tmp_p
     hand.offsets = np.zeros(38)
     used = load_into(hand, "emu", tmp_path)
     assert used["tactile"] is not None and used["fingers"] is None
+    # the driver knows the flagged sensors, so a recognition ignores them
+    assert set(hand.sensor_flags()) == {8, 33}
     assert "run `activetouch calibrate fingers`" in caplog.text
     good = [i for i in range(38) if i not in (8, 33)]
     assert np.max(np.abs(hand.offsets[good] - offsets[good])) < 1.5

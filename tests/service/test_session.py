@@ -500,3 +500,18 @@ def test_a_stuck_sensor_is_ignored_for_the_whole_recognition(trained_home, small
     assert res.masked_sensors == stuck and len(stuck) == 1
     nominal = recognize_in_twin(small_model, lib, "cup", "tree", 3, small_config(), max_moves=4)
     assert nominal.masked_sensors == []
+    assert res.masked_reasons == {stuck[0]: "in contact with the hand open"}
+
+
+def test_dead_sensors_are_found_at_rest_and_left_out_of_the_likelihood(trained_home, small_model):
+    # A dead sensor reads exactly nothing at rest while the others show their noise: it is
+    # masked and reported, and the grasp likelihood compares the other sensors only.
+    cfg = small_config()
+    cfg.sim.fault_dead = 3
+    cfg.recognition.belief = "grasp_likelihood"
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    res = recognize_in_twin(small_model, lib, "cup", "greedy", 5, cfg, max_moves=3)
+    with open_twin(lib.get("cup"), cfg.sim, seed=5) as twin:
+        dead = sorted(twin.hand.faulty.dead.tolist())
+    assert res.masked_sensors == dead
+    assert set(res.masked_reasons.values()) == {"reads nothing at rest (dead)"}

@@ -211,3 +211,25 @@ def test_noisy_sensors_read_at_rest_set_thresholds_that_silence_them():
         assert (g.finger_angles > 0.1).all()
         with pytest.raises(ValueError):
             hand.set_contact_thresholds([1.0] * 5)
+
+
+def test_mask_reasons_from_flags_and_rest_readings():
+    from activetouch.session.loop import dead_at_rest, mask_reasons, rest_levels
+
+    rng = np.random.default_rng(0)
+    p = rng.normal(0.0, 2.0, (20, 38))
+    p[:, 6] = 0.0  # dead: exactly nothing
+    contact = np.zeros((20, 38), dtype=bool)
+    contact[:15, 11] = True  # stuck: in contact in 15 of 20
+    contact[:3, 12] = True  # a few spikes: not stuck
+    rest = rest_levels(p, contact)
+    assert dead_at_rest(rest).tolist() == [6]
+    flags = {2: "noisy", 3: "drifting", 30: "saturated", 6: "dead"}
+    assert mask_reasons(flags, rest) == {
+        2: "noisy (tactile calibration)",
+        6: "dead (tactile calibration)",
+        11: "in contact with the hand open",
+        30: "saturated (tactile calibration)",
+    }
+    flat = rest_levels(np.zeros((20, 38)), np.zeros((20, 38), dtype=bool))
+    assert dead_at_rest(flat).size == 0  # a hand that reads all zeros (a fake) has no dead

@@ -111,6 +111,8 @@ def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int 
         "total_s": res.total_s,
         "unreachable": res.unreachable,
         "reachability_s": res.reachability_s,
+        "masked_sensors": res.masked_sensors,
+        "masked_reasons": {str(i): w for i, w in res.masked_reasons.items()},
     }
 
 
@@ -210,6 +212,11 @@ def _report(
         if res.unreachable
         else ""
     )
+    if res.masked_reasons:
+        console.print(
+            "sensors ignored: " + "; ".join(f"{i} {w}" for i, w in res.masked_reasons.items()),
+            highlight=False,
+        )
     console.print(
         f"robot time: {res.total_s:.1f} s = moving {res.motion_s:.1f} s + grasping "
         f"{res.grasp_s:.1f} s + planning {res.planning_s + res.motion_planning_s:.1f} s "

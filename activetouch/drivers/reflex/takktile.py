@@ -31,7 +31,12 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.calibration import store
-from activetouch.calibration.tactile import TactileSettings, fit_tactile
+from activetouch.calibration.tactile import (
+    TactileSettings,
+    fit_tactile,
+    flags_by_sensor,
+    rec_flags,
+)
 from activetouch.device_types import HandConfig
 from activetouch.drivers.reflex import codec, kinematics
 from activetouch.drivers.reflex.common import (
@@ -217,6 +222,7 @@ class TactileZero:
     zero: np.ndarray
     threshold: np.ndarray
     source: str = ""
+    flags: dict[int, str] = field(default_factory=dict)  # sensor id -> calibration flag
 
 
 @dataclass(frozen=True)
@@ -247,7 +253,12 @@ def stored_calibration(device: str, data: object) -> tuple[TactileZero | None, F
         v = rec.values
         if kind == "tactile":
             out.append(
-                TactileZero(np.asarray(v["zero"], float), np.asarray(v["threshold"], float), src)
+                TactileZero(
+                    np.asarray(v["zero"], float),
+                    np.asarray(v["threshold"], float),
+                    src,
+                    flags_by_sensor(v.get("flags")),
+                )
             )
         elif "motor_zero_points" in v:
             out.append(
@@ -375,7 +386,9 @@ class ReflexTakktileHand(Hand):
         self.offsets = np.asarray(cfg.zero_offsets or [0.0] * N_SENSORS, dtype=np.float64)
         self.tactile_calibrated = bool(cfg.zero_offsets)
         self.tactile_source = "hand.zero_offsets" if cfg.zero_offsets else ""
+        self.flags: dict[int, str] = {}  # the tactile calibration's flags (`sensor_flags`)
         if tactile is not None:
+            self.flags = dict(tactile.flags)
             self.offsets = np.asarray(tactile.zero, dtype=np.float64).copy()
             self.thresholds = np.asarray(tactile.threshold, dtype=np.float64).copy()
             self.tactile_calibrated, self.tactile_source = True, tactile.source
@@ -565,7 +578,12 @@ class ReflexTakktileHand(Hand):
             min_samples=min(30, self.cfg.zero_samples), min_threshold=self.cfg.contact_threshold
         )
         fit = fit_tactile(np.asarray(ts), np.stack(rows), st)
-        self.set_tactile_calibration(fit.zero, fit.threshold, source="hand.zero_on_connect")
+        self.set_tactile_calibration(
+            fit.zero,
+            fit.threshold,
+            source="hand.zero_on_connect",
+            flags=flags_by_sensor(rec_flags(fit)),
+        )
         log.info("ReFlex: tactile zeroed at connect (hand.zero_on_connect), %d packets", len(rows))
 
     def disconnect(self, idle: bool = True) -> None:
@@ -834,10 +852,16 @@ class ReflexTakktileHand(Hand):
         self.encoder_zero = np.asarray(encoder_zero, dtype=np.float64).copy()
 
     def set_tactile_calibration(
-        self, zero: np.ndarray, threshold: np.ndarray, source: str = ""
+        self,
+        zero: np.ndarray,
+        threshold: np.ndarray,
+        source: str = "",
+        flags: dict[int, str] | None = None,
     ) -> None:
-        """Use this tactile zero and thresholds from the next packet on; clears the mask."""
+        """Use this tactile zero and thresholds from the next packet on; clears the mask.
+        `flags`: sensor id -> the calibration's flag (`sensor_flags`)."""
         with self._cond:
+            self.flags = dict(flags or {})
             self.offsets = np.asarray(zero, dtype=np.float64).copy()
             self.thresholds = np.asarray(threshold, dtype=np.float64).copy()
             self.masked = np.zeros(N_SENSORS, dtype=bool)
@@ -845,6 +869,10 @@ class ReflexTakktileHand(Hand):
             self.tactile_calibrated, self.tactile_source = True, source
 
     # -- Hand interface -------------------------------------------------------------------
+
+    def sensor_flags(self) -> dict[int, str]:
+        with self._cond:
+            return dict(self.flags)
 
     def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
         """The caller's mask (one recognition's), beside the sensors masked at connect."""
