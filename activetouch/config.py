@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 
 # Settings that take one of a few words: anything else is refused when the config is loaded.
 Classifier = Literal["svm", "nn_inner", "nn_intersection"]
-Belief = Literal["histogram", "grasp_likelihood"]
+Belief = Literal["histogram", "grasp_likelihood", "pose"]
 Granularity = Literal["triangle", "grasp"]
 ActionFrame = Literal["relative", "absolute"]
 PolicyName = Literal["tree", "greedy", "random"]
@@ -69,6 +69,18 @@ class RecognitionConfig:
     likelihood_sensor_scale: float = 1.0
     likelihood_angle_sigma_rad: float = 0.05
     likelihood_floor: float = 1e-4
+    # "pose": a belief over class x where the object really stands (dx, dy on the table and a
+    # yaw about its vertical, on a grid over +-range), each grasp weighed with the class's
+    # mesh: contacts on its surface, sensor sites and swept fingers outside it
+    # (recognition/pose_belief.py). The planner plans on its class marginal.
+    pose_range_m: float = 0.03
+    pose_step_m: float = 0.01
+    pose_range_deg: float = 30.0
+    pose_step_deg: float = 7.5
+    pose_contact_sigma_m: float = 0.005
+    pose_free_margin_m: float = 0.003
+    pose_free_sigma_m: float = 0.004
+    pose_floor: float = 1e-3
 
 
 @dataclass

@@ -44,6 +44,7 @@ import msgspec
 import numpy as np
 import zenoh
 
+from activetouch import paths
 from activetouch.config import Config
 from activetouch.daemon.client import BusyError, RecognitionAbortedError
 from activetouch.daemon.interlock import GuardedHand, GuardedWrist, Interlock
@@ -57,6 +58,7 @@ from activetouch.errors import (
     MessageError,
     NodeUnavailableError,
 )
+from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import workcell_placement
 from activetouch.planning.policies import PlanningState, make_policy
 from activetouch.recordings.format import placement_pose
@@ -759,6 +761,9 @@ class RecognitionService:
             support_z=support_z,
             recognition=self.cfg.recognition,
             recorder=recorder,
+            library=ObjectLibrary(paths.objects_dir(self.data))
+            if self.cfg.recognition.belief == "pose"
+            else None,
         )
         t_run = time.perf_counter()
         try:
@@ -796,6 +801,7 @@ class RecognitionService:
             total_s=max(0.0, res.total_s),
             masked_sensors=list(res.masked_sensors),
             masked_reasons={str(i): w for i, w in res.masked_reasons.items()},
+            pose_estimate=res.pose_estimate,
         )
 
     def _stop_recognitions(self) -> None:

@@ -140,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
             lambda _ev: first or first.append(time.perf_counter() - t0),
             support_z=twin.support_z,
             recognition=cfg.recognition,
+            library=library,
         ).run()
         total = time.perf_counter() - t0
         return {"first_s": first[0], "total_s": total, "labels": res.labels, "poses": res.pose_ids}

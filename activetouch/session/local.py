@@ -118,6 +118,7 @@ def recognize_in_twin(
             support_z=twin.support_z,
             recognition=cfg.recognition,
             recorder=recorder,
+            library=library,
         )
         return session.run()
 
@@ -157,6 +158,7 @@ def _recognize_on_devices(
             support_z=placement.support_z(cfg.workcell.table_top_z),
             recognition=cfg.recognition,
             recorder=recorder,
+            library=library,
         )
         return session.run()
 

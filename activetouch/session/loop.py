@@ -26,6 +26,7 @@ sessions are unchanged.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import threading
 import time
@@ -44,6 +45,8 @@ from activetouch.errors import (
 )
 from activetouch.interfaces import N_SENSORS, Grasp, Hand, Pose
 from activetouch.model import TrainedModel
+from activetouch.models.reflex import ReflexGeometry
+from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
 from activetouch.planning.policies import Plan, PlanningState, Policy
@@ -54,6 +57,7 @@ from activetouch.recognition.grasp_likelihood import (
     LikelihoodParams,
     softmax_belief,
 )
+from activetouch.recognition.pose_belief import ClassShape, PoseBelief, PoseParams
 
 log = logging.getLogger(__name__)
 
@@ -103,6 +107,9 @@ class RecognitionResult:
     # touched: stuck, or a zero that drifted), or reading nothing at all at rest (dead).
     masked_sensors: list[int] = field(default_factory=list)
     masked_reasons: dict[int, str] = field(default_factory=dict)
+    # recognition.belief = pose: where the object stands off its nominal placement under the
+    # label (dx_m, dy_m, yaw_deg, and their standard deviations sd_*)
+    pose_estimate: dict[str, float] | None = None
 
     @property
     def moves(self) -> int:
@@ -269,9 +276,15 @@ class BeliefTracker:
     gives the recorded labels bit for bit."""
 
     def __init__(
-        self, model: TrainedModel, likelihood: tuple[GraspLikelihood, LikelihoodParams] | None
+        self,
+        model: TrainedModel,
+        likelihood: tuple[GraspLikelihood, LikelihoodParams] | None,
+        pose: PoseBelief | None = None,
     ) -> None:
-        self.model, self.likelihood = model, likelihood
+        """`pose` (`recognition.belief = pose`): the belief over class x placement that
+        decides p(y | ...) instead of the grasp likelihood (the planner still plans with
+        the grasp likelihood's table, on this belief's class marginal)."""
+        self.model, self.likelihood, self.pose = model, likelihood, pose
         self.counts = np.zeros(model.spec.n_bins)
         self._log_b = np.zeros(len(model.class_names))  # summed log p(grasp | y, pose)
 
@@ -290,7 +303,12 @@ class BeliefTracker:
         add = self.model.spec.counts(tris)
         cells = self.model.observation.cells_of(tris)
         self.counts = self.counts + add
-        if self.likelihood is None:
+        if self.pose is not None:
+            self.pose.update(grasp, pose)
+            self._log_b = self.pose.class_log_belief()
+            p = softmax_belief(self._log_b)
+            felt = bool(np.ptp(p) > 1e-12)
+        elif self.likelihood is None:
             p = self.model.proba(self.counts)
             # No triangle yet: p is uniform and its argmax (class 0) says nothing.
             felt = bool(self.counts.any())
@@ -316,12 +334,14 @@ class RecognitionSession:
         support_z: float | None = None,
         recognition: RecognitionConfig | None = None,
         recorder: SessionRecorder | None = None,
+        library: ObjectLibrary | None = None,
     ) -> None:
         """`support_z`: the table plane in the object frame (the object pose is known, as in
         the paper, from the workcell); contacts on it are dropped, as in training.
         `recognition`: the settings that choose the belief (`recognition.belief`); default the
         model's own. `recorder`: told every wrist goal, grasp (as observed, table contacts
-        dropped), belief, plan and skipped pose (`recordings.writer.SafeRecorder`)."""
+        dropped), belief, plan and skipped pose (`recordings.writer.SafeRecorder`).
+        `library`: the classes' meshes, for `recognition.belief = pose`."""
         if cfg.max_moves < 1:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
@@ -339,6 +359,7 @@ class RecognitionSession:
         self._preshapes = training_preshapes(model)
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
+        self._pose_of = pose_belief_of(model, recognition, library)
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
@@ -474,7 +495,7 @@ class RecognitionSession:
         visited: list[int] = self._unreachable(res)
         self._travel_costs()
         ruled_out = set(visited)
-        belief = BeliefTracker(self.model, self._likelihood)
+        belief = BeliefTracker(self.model, self._likelihood, self._pose_of())
         state: PlanningState | None = None
         streak = 0
         rec = self.recorder
@@ -617,6 +638,8 @@ class RecognitionSession:
             p = np.asarray(res.probabilities[-1])
             res.label = res.labels[-1]
             res.probability = float(p.max()) if res.label != NO_LABEL else 0.0
+            if belief.pose is not None:
+                res.pose_estimate = belief.pose.estimate(int(np.argmax(p))).as_dict()
         self._clock(res, clock0)
         res.elapsed_s = time.perf_counter() - t0
         return res
@@ -628,14 +651,13 @@ def grasp_likelihood_of(
     """The per-grasp likelihood and its widths when `recognition.belief` asks for it (None for
     the paper's histogram classifier); ConfigError if the model has none."""
     if recognition is None:
-        known = {f.name for f in dataclasses.fields(RecognitionConfig)}
-        saved = model.config.get("recognition", {})
-        recognition = RecognitionConfig(**{k: v for k, v in saved.items() if k in known})
+        recognition = saved_recognition(model)
     if recognition.belief == "histogram":
         return None
-    if recognition.belief != "grasp_likelihood":
+    if recognition.belief not in ("grasp_likelihood", "pose"):
         raise ConfigError(
-            f"recognition.belief: {recognition.belief!r} is not one of histogram, grasp_likelihood"
+            f"recognition.belief: {recognition.belief!r} is not one of histogram, "
+            "grasp_likelihood, pose"
         )
     if model.likelihood is None:
         raise ConfigError(
@@ -643,6 +665,51 @@ def grasp_likelihood_of(
             "before it existed); retrain it with `activetouch train` (the grasps are reused)"
         )
     return model.likelihood, LikelihoodParams.from_config(recognition)
+
+
+def saved_recognition(model: TrainedModel) -> RecognitionConfig:
+    known = {f.name for f in dataclasses.fields(RecognitionConfig)}
+    saved = model.config.get("recognition", {})
+    return RecognitionConfig(**{k: v for k, v in saved.items() if k in known})
+
+
+@functools.lru_cache(maxsize=256)
+def _class_shape(mesh: str, mtime_ns: int) -> ClassShape:
+    # deferred: loads trimesh
+    import trimesh
+
+    m = trimesh.load(mesh, force="mesh")
+    return ClassShape.from_mesh(m.vertices, m.faces)
+
+
+def class_shapes(names: list[str], library: ObjectLibrary) -> list[ClassShape]:
+    """Each class's surface samples from its library mesh (cached per file and version)."""
+    out = []
+    for name in names:
+        if name not in library:
+            raise ConfigError(
+                f"recognition.belief=pose: class {name!r} is not in the object library at "
+                f"{library.root}: the pose belief needs every class's mesh"
+            )
+        mesh = library.get(name).visual_mesh
+        out.append(_class_shape(str(mesh), mesh.stat().st_mtime_ns))
+    return out
+
+
+def pose_belief_of(
+    model: TrainedModel, recognition: RecognitionConfig | None, library: ObjectLibrary | None
+) -> Callable[[], PoseBelief | None]:
+    """A maker of fresh pose beliefs when `recognition.belief = pose` (one per recognition),
+    else of None; ConfigError now if the library cannot give every class's mesh."""
+    rc = recognition or saved_recognition(model)
+    if rc.belief != "pose":
+        return lambda: None
+    if library is None:
+        raise ConfigError("recognition.belief=pose needs the object library (the classes' meshes)")
+    shapes = class_shapes(list(model.class_names), library)
+    params = PoseParams.from_config(rc)
+    geom = ReflexGeometry()
+    return lambda: PoseBelief(shapes, params, geom)
 
 
 def belief_table_of(

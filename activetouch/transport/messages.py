@@ -365,6 +365,9 @@ class RecognizeResult(Message, kw_only=True):
     # contact with the hand open, or dead at rest), and why: sensor id (as text) -> reason.
     masked_sensors: list[SensorId] = []
     masked_reasons: dict[str, str] = {}
+    # recognition.belief = pose: the placement estimate under the label (dx_m, dy_m, yaw_deg
+    # and their standard deviations sd_x_m, sd_y_m, sd_yaw_deg)
+    pose_estimate: dict[str, float] | None = None
 
 
 class MotionStats(Message, kw_only=True):

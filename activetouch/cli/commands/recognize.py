@@ -113,6 +113,7 @@ def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int 
         "reachability_s": res.reachability_s,
         "masked_sensors": res.masked_sensors,
         "masked_reasons": {str(i): w for i, w in res.masked_reasons.items()},
+        "pose_estimate": res.pose_estimate,
     }
 
 
