@@ -1,0 +1,126 @@
+"""The belief over class x placement: signed distances of a box checked against its geometry,
+hypotheses moved by hand, and a misplaced box found from contacts on its surface."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from activetouch.errors import ConfigError
+from activetouch.interfaces import Grasp, Pose
+from activetouch.models.reflex import ReflexGeometry
+from activetouch.recognition.pose_belief import (
+    DISTANCE_CAP_M,
+    ClassShape,
+    PoseBelief,
+    PoseParams,
+    in_object_frames,
+    pose_grid,
+)
+
+BOX = (0.10, 0.06, 0.08)
+
+
+def _shape(extents) -> ClassShape:
+    m = trimesh.creation.box(extents=extents)
+    return ClassShape.from_mesh(m.vertices, m.faces)
+
+
+@pytest.fixture(scope="module")
+def box() -> ClassShape:
+    return _shape(BOX)
+
+
+def test_grid_covers_the_range_with_zero_in_it():
+    g = pose_grid(PoseParams(range_m=0.02, step_m=0.01, range_deg=15.0, step_deg=7.5))
+    assert g.shape == (5 * 5 * 5, 3)
+    assert np.any(np.all(g == 0.0, axis=1))
+    assert g[:, 0].max() == pytest.approx(0.02) and np.rad2deg(g[:, 2]).min() == pytest.approx(-15)
+    with pytest.raises(ConfigError, match="pose_step_m"):
+        PoseParams(step_m=0.0)
+
+
+def test_signed_distance_of_a_box(box):
+    # Exact values from the box's geometry: faces at x = +-5 cm, y = +-3, z = +-4.
+    q = np.array(
+        [
+            [0.0, 0.0, 0.0],  # centre: 3 cm inside, beyond the cap
+            [0.04, 0.0, 0.0],  # 1 cm inside the +x face
+            [0.06, 0.0, 0.0],  # 1 cm outside it
+            [0.0, 0.03, 0.0],  # on the +y face
+            [0.0, 0.0, 0.052],  # 1.2 cm over the top
+            [0.5, 0.5, 0.5],  # far away
+        ]
+    )
+    sd = box.signed_distance(q)
+    want = [-DISTANCE_CAP_M, -0.01, 0.01, 0.0, 0.012, DISTANCE_CAP_M]
+    assert sd == pytest.approx(want, abs=0.0025)  # samples 1-2 mm apart, a 4 mm grid
+
+
+def test_hypotheses_move_points_into_the_displaced_objects_frame():
+    hyps = np.array([[0.0, 0.0, 0.0], [0.02, -0.01, np.deg2rad(90.0)]])
+    p = np.array([[0.02, -0.01 + 0.05, 0.1]])  # 5 cm along the turned object's own +x
+    out = in_object_frames(p, hyps)
+    assert out[0, 0] == pytest.approx(p[0])
+    assert out[1, 0] == pytest.approx([0.05, 0.0, 0.1], abs=1e-12)
+
+
+def _contacts_on(extents, dx, dy, yaw_deg, n, seed) -> np.ndarray:
+    """Points on the surface of a box standing at (dx, dy) turned by yaw, nominal frame."""
+    m = trimesh.creation.box(extents=extents)
+    pts, _ = trimesh.sample.sample_surface(m, n, seed=seed)
+    r = Rotation.from_euler("z", yaw_deg, degrees=True)
+    return r.apply(np.asarray(pts)) + [dx, dy, 0.0]
+
+
+def test_a_misplaced_box_is_found_and_told_from_a_larger_one(box):
+    larger = _shape((0.12, 0.06, 0.08))
+    belief = PoseBelief([box, larger], PoseParams(), ReflexGeometry())
+    # Palm far above (hand frame = object frame shifted up 1 m): its quiet sites say nothing.
+    up = Pose([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
+    truth = (0.02, -0.01, 15.0)
+    for seed in range(8):
+        c = _contacts_on(BOX, *truth, n=6, seed=seed) - up.xyz
+        belief.update(
+            Grasp(
+                sensor_ids=np.arange(6),
+                xyz=c,
+                pressures=np.full(6, 50.0),
+                finger_angles=np.zeros(3),
+                preshape=0.0,
+            ),
+            up,
+        )
+    p = np.exp(belief.class_log_belief() - belief.class_log_belief().max())
+    assert p[0] / p.sum() > 0.95
+    est = belief.estimate(0)
+    assert est.dx_m == pytest.approx(0.02, abs=0.005)
+    assert est.dy_m == pytest.approx(-0.01, abs=0.005)
+    assert est.yaw_deg == pytest.approx(15.0, abs=4.0)
+    assert est.sd_x_m < 0.01
+
+
+def test_a_finger_that_closed_through_the_hypothesis_rules_it_out():
+    # An empty grasp whose first finger swept through a 3 cm cube at the nominal placement:
+    # the cube cannot stand there, but it can 3 cm away.
+    from activetouch.models.reflex import sensor_positions
+
+    cube = _shape((0.03, 0.03, 0.03))
+    belief = PoseBelief([cube], PoseParams(), ReflexGeometry())
+    angles = np.full(3, 1.2)
+    swept = sensor_positions(ReflexGeometry(), 0.0, angles * 0.7, np.zeros(3))
+    at = Pose(-swept[2], [0.0, 0.0, 0.0, 1.0])  # finger 0's third site passed the origin
+    empty = Grasp(
+        sensor_ids=np.zeros(0, dtype=np.int64),
+        xyz=np.zeros((0, 3)),
+        pressures=np.zeros(0),
+        finger_angles=angles,
+        preshape=0.0,
+    )
+    belief.update(empty, at)
+    lb = belief.log_b[0]
+    zero = int(np.flatnonzero(np.all(belief.hyps == 0.0, axis=1))[0])
+    assert lb[zero] < lb.max() - 5.0  # the nominal placement is ruled out
+    assert lb.max() == 0.0  # somewhere nothing was in the way
