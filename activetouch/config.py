@@ -81,6 +81,8 @@ class RecognitionConfig:
     pose_free_margin_m: float = 0.003
     pose_free_sigma_m: float = 0.004
     pose_floor: float = 1e-3
+    # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
+    pose_with_grasps: bool = True
 
 
 @dataclass

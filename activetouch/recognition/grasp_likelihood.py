@@ -134,6 +134,21 @@ class GraspLikelihood:
         keep = ~sensor_mask(ignore) if ignore is not None and len(ignore) else None
         return self._log_likelihood_many(mask, finger_closure(grasp)[None], x, params, keep)[0]
 
+    def log_likelihood_at_poses(
+        self,
+        grasp: Grasp,
+        poses: np.ndarray,
+        params: LikelihoodParams,
+        ignore: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """(P, K) log p(grasp | y, x) of one grasp as if made at each of `poses` (P, 7)."""
+        mask = np.array([sensor_mask(grasp.sensor_ids)], dtype=np.uint64)
+        keep = ~sensor_mask(ignore) if ignore is not None and len(ignore) else None
+        closure = finger_closure(grasp)[None]
+        return np.stack(
+            [self._log_likelihood_many(mask, closure, x, params, keep)[0] for x in poses]
+        )
+
     def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
         """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a
         simulated observation of grasp j tells the planner's belief (cached per `params`)."""

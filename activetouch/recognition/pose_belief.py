@@ -24,12 +24,14 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError
 from activetouch.interfaces import N_SENSORS, SENSORS_PER_FINGER, Grasp, Pose
 from activetouch.models.reflex import ReflexGeometry, sensor_positions
 from activetouch.recognition.contacts import hand_to_object
+from activetouch.recognition.grasp_likelihood import GraspLikelihood, LikelihoodParams
 
 N_FINGERS = 3
 _SWEEP = (0.35, 0.7)  # fractions of each finger's closing angle it passed through freely
@@ -240,23 +242,53 @@ def pose_estimate(log_b: np.ndarray, hyps: np.ndarray, k: int) -> PoseEstimate:
     )
 
 
+def wrist_under_hypotheses(pose: Pose, hyps: np.ndarray) -> np.ndarray:
+    """(H, 7) the wrist `pose` (nominal object frame) relative to the object as it stands
+    under each hypothesis: T_h^-1 * pose (x y z qx qy qz qw)."""
+    r_h = Rotation.from_euler("z", hyps[:, 2:3])
+    t = np.zeros((len(hyps), 3))
+    t[:, :2] = hyps[:, :2]
+    xyz = r_h.inv().apply(np.asarray(pose.xyz)[None, :] - t)
+    quat = (r_h.inv() * Rotation.from_quat(pose.quat)).as_quat()
+    return np.concatenate([xyz, quat], axis=1)
+
+
+# Hypotheses whose best class is this far (nats) below the best pair get no training-grasp
+# term (they are ruled out already; it is the costly part).
+PRUNE_NATS = 15.0
+
+
 @dataclass
 class PoseBelief:
-    """log b(y, h) over the model's classes and the placement hypotheses, grasp by grasp."""
+    """log b(y, h) over the model's classes and the placement hypotheses, grasp by grasp:
+    the mesh term, plus (with `grasps`) the grasp likelihood of the training grasps at the
+    wrist pose each hypothesis implies, where the mesh cannot tell look-alikes apart (a
+    handle the fingers did not reach, how far each finger closed)."""
 
     shapes: list[ClassShape]
     params: PoseParams
     geometry: ReflexGeometry
+    grasps: tuple[GraspLikelihood, LikelihoodParams] | None = None
 
     def __post_init__(self) -> None:
         self.hyps = pose_grid(self.params)
         self.log_b = np.zeros((len(self.shapes), len(self.hyps)))
 
-    def update(self, grasp: Grasp, pose: Pose) -> None:
+    def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
         contacts, free = grasp_points(grasp, pose, self.geometry)
-        self.log_b = self.log_b + grasp_log_likelihood(
+        total = self.log_b + grasp_log_likelihood(
             self.shapes, self.hyps, contacts, free, self.params
         )
+        if self.grasps is not None:
+            model_l, lp = self.grasps
+            best = total.max(axis=0)
+            live = np.flatnonzero(best >= best.max() - PRUNE_NATS)
+            x = wrist_under_hypotheses(pose, self.hyps[live])
+            train = model_l.log_likelihood_at_poses(grasp, x, lp, ignore)  # (L, K)
+            term = np.full(total.shape, float(train.min()))
+            term[:, live] = train.T
+            total = total + term
+        self.log_b = total
 
     def class_log_belief(self) -> np.ndarray:
         """(K,) log of the class marginal (up to a constant)."""

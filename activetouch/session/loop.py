@@ -304,7 +304,7 @@ class BeliefTracker:
         cells = self.model.observation.cells_of(tris)
         self.counts = self.counts + add
         if self.pose is not None:
-            self.pose.update(grasp, pose)
+            self.pose.update(grasp, pose, ignore)
             self._log_b = self.pose.class_log_belief()
             p = softmax_belief(self._log_b)
             felt = bool(np.ptp(p) > 1e-12)
@@ -709,7 +709,8 @@ def pose_belief_of(
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
     geom = ReflexGeometry()
-    return lambda: PoseBelief(shapes, params, geom)
+    grasps = grasp_likelihood_of(model, rc) if rc.pose_with_grasps else None
+    return lambda: PoseBelief(shapes, params, geom, grasps)
 
 
 def belief_table_of(
