@@ -83,3 +83,33 @@ def test_an_arm_that_cannot_use_the_default_workcell_gets_its_own() -> None:
     mine = load_config(None, ["arm.type=twin-baxter", "workcell.object_xyz=[0.7, 0.1, -0.1]"])
     assert mine.workcell.object_xyz == [0.7, 0.1, -0.1]
     assert mine.workcell.table_center == WorkcellConfig().table_center
+
+
+def test_profiles_start_the_settings_and_the_file_and_overrides_still_win(tmp_path):
+    from activetouch.config import PROFILES, profile_line
+
+    assert load_config().profile == "robust"
+    paper = load_config(None, ["profile=paper"])
+    assert paper.profile == "paper"
+    for dotted, value in PROFILES["paper"].items():
+        section, key = dotted.split(".")
+        assert getattr(getattr(paper, section), key) == value
+    f = tmp_path / "c.toml"
+    f.write_text('profile = "paper"\n[recognition]\nbelief = "pose"\n')
+    cfg = load_config(f)
+    assert cfg.profile == "paper" and cfg.recognition.belief == "pose"  # the file wins
+    assert load_config(f, ["profile=robust"]).profile == "robust"  # the override wins
+    assert profile_line(paper).startswith("paper: recognition.belief histogram")
+    with pytest.raises(ConfigError, match="profile: 'fast' is not one of robust, paper"):
+        load_config(None, ["profile=fast"])
+
+
+def test_the_profile_flag_reaches_the_configuration(tmp_path, capsys):
+    from activetouch.cli.main import main
+
+    rc = main(["recognize", "--profile", "paper", "--object", "mug", "--data", str(tmp_path)])
+    out = capsys.readouterr()
+    assert rc != 0 and "no model" in out.err  # a clear error, after saying what it would use
+    assert "profile paper: recognition.belief histogram" in out.out
+    main(["recognize", "--object", "mug", "--data", str(tmp_path)])
+    assert "profile robust:" in capsys.readouterr().out

@@ -15,6 +15,7 @@ from rich.console import Console
 from rich.markup import escape
 
 from activetouch import __version__
+from activetouch.config import PROFILES
 from activetouch.errors import ActiveTouchError
 
 # Modules that register sub-commands, in the order `--help` lists them.
@@ -63,12 +64,22 @@ def add_common_options(p: argparse.ArgumentParser) -> None:
         dest="overrides",
         help="override one configuration value (repeatable)",
     )
+    p.add_argument(
+        "--profile",
+        choices=list(PROFILES),
+        default=None,
+        help="the named set of settings to start from: robust (the default, measured best) "
+        "or paper (the paper's method); --config and --set still win",
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # for reports that quote the command
+    if getattr(args, "profile", None):
+        # first, so a later --set profile=... still wins; subprocesses get it with the rest
+        args.overrides = [f"profile={args.profile}", *args.overrides]
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -262,6 +262,11 @@ def session_result(msg: RecognizeResult) -> RecognitionResult:
         motion_s=msg.motion_s,
         motion_planning_s=msg.motion_planning_s,
         grasp_s=msg.grasp_s,
+        masked_sensors=list(msg.masked_sensors),
+        masked_reasons={int(k): v for k, v in msg.masked_reasons.items()},
+        pose_estimate=msg.pose_estimate,
+        profile=msg.profile,
+        settings=dict(msg.settings),
     )
 
 

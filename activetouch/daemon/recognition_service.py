@@ -45,7 +45,7 @@ import numpy as np
 import zenoh
 
 from activetouch import paths
-from activetouch.config import Config
+from activetouch.config import Config, profile_settings
 from activetouch.daemon.client import BusyError, RecognitionAbortedError
 from activetouch.daemon.interlock import GuardedHand, GuardedWrist, Interlock
 from activetouch.daemon.jobs import EXPIRY_SWEEP_S, Job, Running, TimedPolicy
@@ -802,6 +802,8 @@ class RecognitionService:
             masked_sensors=list(res.masked_sensors),
             masked_reasons={str(i): w for i, w in res.masked_reasons.items()},
             pose_estimate=res.pose_estimate,
+            profile=self.cfg.profile,
+            settings=profile_settings(self.cfg),
         )
 
     def _stop_recognitions(self) -> None:

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from activetouch import paths
-from activetouch.config import Config, SessionConfig
+from activetouch.config import Config, SessionConfig, profile_settings
 from activetouch.device_types import DEFAULT_ARM as FLOATING_ARM
 from activetouch.devices import make_devices
 from activetouch.errors import ConfigError, DataError
@@ -51,6 +51,12 @@ def check_request(policy: str, max_moves: int, seed: int = 0) -> None:
         raise ConfigError(f"unknown policy {policy!r}; choose from {', '.join(POLICY_NAMES)}")
     if max_moves < 1:
         raise ConfigError(f"the move budget must be at least 1, got {max_moves}")
+
+
+def stamped(res: RecognitionResult, cfg: Config) -> RecognitionResult:
+    """`res` with the profile and method settings it ran with."""
+    res.profile, res.settings = cfg.profile, profile_settings(cfg)
+    return res
 
 
 def recognize_in_twin(
@@ -120,7 +126,7 @@ def recognize_in_twin(
             recorder=recorder,
             library=library,
         )
-        return session.run()
+        return stamped(session.run(), cfg)
 
 
 def _recognize_on_devices(
@@ -160,7 +166,7 @@ def _recognize_on_devices(
             recorder=recorder,
             library=library,
         )
-        return session.run()
+        return stamped(session.run(), cfg)
 
 
 @contextlib.contextmanager

@@ -110,6 +110,9 @@ class RecognitionResult:
     # recognition.belief = pose: where the object stands off its nominal placement under the
     # label (dx_m, dy_m, yaw_deg, and their standard deviations sd_*)
     pose_estimate: dict[str, float] | None = None
+    # The configuration's profile and the settings that define the method (set by who ran it)
+    profile: str = ""
+    settings: dict[str, Any] = field(default_factory=dict)
 
     @property
     def moves(self) -> int:

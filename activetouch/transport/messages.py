@@ -368,6 +368,8 @@ class RecognizeResult(Message, kw_only=True):
     # recognition.belief = pose: the placement estimate under the label (dx_m, dy_m, yaw_deg
     # and their standard deviations sd_x_m, sd_y_m, sd_yaw_deg)
     pose_estimate: dict[str, float] | None = None
+    profile: str = ""  # the daemon's configuration profile (`--profile`)
+    settings: dict[str, str | float | int | bool] = {}  # the settings that define its method
 
 
 class MotionStats(Message, kw_only=True):

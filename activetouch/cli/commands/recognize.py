@@ -14,7 +14,7 @@ from rich.console import Console
 
 from activetouch import paths
 from activetouch.cli.main import add_common_options
-from activetouch.config import Config, load_config
+from activetouch.config import Config, load_config, profile_line
 from activetouch.errors import ActiveTouchError, ConfigError
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.policies import POLICY_NAMES
@@ -89,6 +89,8 @@ def format_progress(ev: Progress) -> str:
 
 def result_json(res: RecognitionResult, obj: str | None, policy: str, seed: int | None) -> dict:
     return {
+        "profile": res.profile,
+        "settings": res.settings,
         "object": obj,
         "policy": policy,
         "seed": seed,
@@ -135,6 +137,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--object is required: the twin needs the object to place")
     budget = args.max_moves if args.max_moves is not None else cfg.session.max_moves
     check_request(policy, budget, args.seed)
+    console.print(f"profile {profile_line(cfg)}", highlight=False)
     model = load_trained(model_path(root, args.model))
     library = ObjectLibrary(paths.objects_dir(root))
     library.get(args.object)  # an unknown object fails here, before anything runs

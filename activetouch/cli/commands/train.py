@@ -13,7 +13,7 @@ from rich.table import Table
 
 from activetouch import paths
 from activetouch.cli.main import add_common_options
-from activetouch.config import Config, load_config
+from activetouch.config import Config, load_config, profile_line
 from activetouch.errors import ConfigError
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.pipelines.executors import add_executor_options, check_executor
@@ -71,6 +71,7 @@ def train(
         library.ensure_builtins()
     dataset = dataset or paths.default_dataset(root, dataset_variant(cfg))
     out = out or paths.default_model(root)
+    console.print(f"profile {profile_line(cfg)}", highlight=False)
 
     t0 = time.perf_counter()
     with Progress(
