@@ -141,13 +141,44 @@ class GraspLikelihood:
         params: LikelihoodParams,
         ignore: np.ndarray | None = None,
     ) -> np.ndarray:
-        """(P, K) log p(grasp | y, x) of one grasp as if made at each of `poses` (P, 7)."""
-        mask = np.array([sensor_mask(grasp.sensor_ids)], dtype=np.uint64)
-        keep = ~sensor_mask(ignore) if ignore is not None and len(ignore) else None
-        closure = finger_closure(grasp)[None]
-        return np.stack(
-            [self._log_likelihood_many(mask, closure, x, params, keep)[0] for x in poses]
+        """(P, K) log p(grasp | y, x) of one grasp as if made at each of `poses` (P, 7), the
+        same as `log_likelihood` at each; the training grasps further from all of them than
+        the weight cutoff are left out first (the poses are close together: one placement's
+        hypotheses)."""
+        x = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        q = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
+        s_m, s_r = params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg)
+        reach = s_m * np.sqrt(2.0 * np.log(1.0 / _WEIGHT_CUTOFF))  # translation alone
+        centre = x[:, :3].mean(axis=0)
+        spread = float(np.max(np.linalg.norm(x[:, :3] - centre, axis=1)))
+        cand = np.flatnonzero(
+            np.sum((self.poses[:, :3] - centre) ** 2, axis=1) <= (spread + reach) ** 2
         )
+        P, K = len(x), self.n_classes
+        if cand.size == 0:
+            return np.full((P, K), np.log(1.0 + params.floor))
+        tp = self.poses[cand]
+        d2 = np.sum((x[:, None, :3] - tp[None, :, :3]) ** 2, axis=2)
+        dot = np.abs(q @ tp[:, 3:].T)
+        ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+        w = np.exp(-d2 / (2.0 * s_m**2) - ang**2 / (2.0 * s_r**2))
+        w[w <= _WEIGHT_CUTOFF] = 0.0
+        diff = self.masks[cand] ^ sensor_mask(grasp.sensor_ids)
+        if ignore is not None and len(ignore):
+            diff = diff & ~sensor_mask(ignore)
+        ham = np.bitwise_count(diff).astype(float)
+        dth = np.sum((self.closure[cand] - finger_closure(grasp)) ** 2, axis=1)
+        k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
+        onehot = np.zeros((len(cand), K))
+        onehot[np.arange(len(cand)), self.labels[cand]] = 1.0
+        num = (w * k) @ onehot  # (P, K)
+        den = w @ onehot
+        has = den > 0
+        lik = np.where(has, num / np.where(has, den, 1.0), 0.0)
+        n_has = has.sum(axis=1, keepdims=True)
+        mean = np.where(n_has > 0, lik.sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 1.0)
+        lik = np.where(has, lik, mean)  # no grasp near: no say (nowhere near any: 1)
+        return np.log(lik + params.floor)
 
     def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
         """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a

@@ -134,3 +134,23 @@ def test_arrays_round_trip_and_bad_arrays_are_refused() -> None:
 def test_kernel_widths_must_be_positive() -> None:
     with pytest.raises(ConfigError, match="likelihood_pose_sigma_m"):
         LikelihoodParams(pose_sigma_m=0.0)
+
+
+def test_many_poses_at_once_give_what_each_pose_alone_gives() -> None:
+    # The pose belief asks for one grasp at every placement hypothesis in one call.
+    rng = np.random.default_rng(3)
+    per_class = []
+    for _ in range(3):
+        poses = np.concatenate([rng.uniform(-0.1, 0.1, (40, 3)), rng.normal(size=(40, 4))], axis=1)
+        gs = [grasp(sorted(rng.choice(38, 3, replace=False).tolist())) for _ in range(40)]
+        per_class.append((poses, gs))
+    lik = GraspLikelihood.fit(per_class)
+    params = LikelihoodParams()
+    g = grasp([1, 5, 30], (0.8, 1.1, 0.9))
+    xs = np.concatenate([rng.uniform(-0.05, 0.05, (25, 3)), rng.normal(size=(25, 4))], axis=1)
+    xs[-1, :3] = [5.0, 5.0, 5.0]  # nowhere near any training grasp: no evidence
+    ignore = np.array([5])
+    many = lik.log_likelihood_at_poses(g, xs, params, ignore)
+    one = np.stack([lik.log_likelihood(g, Pose(x[:3], x[3:]), params, ignore) for x in xs])
+    assert many == pytest.approx(one, abs=1e-12)
+    assert np.all(many[-1] == np.log(1.0 + params.floor))

@@ -72,7 +72,7 @@ def _contacts_on(extents, dx, dy, yaw_deg, n, seed) -> np.ndarray:
     m = trimesh.creation.box(extents=extents)
     pts, _ = trimesh.sample.sample_surface(m, n, seed=seed)
     r = Rotation.from_euler("z", yaw_deg, degrees=True)
-    return r.apply(np.asarray(pts)) + [dx, dy, 0.0]
+    return r.apply(np.asarray(pts)) + np.array([dx, dy, 0.0])
 
 
 def test_a_misplaced_box_is_found_and_told_from_a_larger_one(box):
