@@ -74,7 +74,7 @@ class RecognitionConfig:
     # training grasps near that pose; recognition/grasp_likelihood.py). The kernel widths
     # (sensor scale and finger-angle width tuned on the hard library's seeds 100-119,
     # docs/benchmark.md):
-    belief: Belief = "histogram"
+    belief: Belief = "pose"
     likelihood_pose_sigma_m: float = 0.02
     likelihood_pose_sigma_deg: float = 12.0
     likelihood_sensor_scale: float = 1.0

@@ -652,7 +652,8 @@ def grasp_likelihood_of(
     model: TrainedModel, recognition: RecognitionConfig | None
 ) -> tuple[GraspLikelihood, LikelihoodParams] | None:
     """The per-grasp likelihood and its widths when `recognition.belief` asks for it (None for
-    the paper's histogram classifier); ConfigError if the model has none."""
+    the paper's histogram classifier); ConfigError if the model has none (for the pose belief,
+    the default: a warning, and the histogram belief)."""
     if recognition is None:
         recognition = saved_recognition(model)
     if recognition.belief == "histogram":
@@ -663,11 +664,20 @@ def grasp_likelihood_of(
             "grasp_likelihood, pose"
         )
     if model.likelihood is None:
-        raise ConfigError(
-            "recognition.belief=grasp_likelihood: this model has no grasp likelihood (trained "
-            "before it existed); retrain it with `activetouch train` (the grasps are reused)"
+        why = (
+            "this model has no grasp likelihood (trained before it existed); retrain it with "
+            "`activetouch train` (the grasps are reused)"
         )
+        if recognition.belief == "pose":
+            _warn_once(f"recognition.belief=pose: {why}; using the histogram belief")
+            return None
+        raise ConfigError(f"recognition.belief=grasp_likelihood: {why}")
     return model.likelihood, LikelihoodParams.from_config(recognition)
+
+
+@functools.lru_cache(maxsize=64)
+def _warn_once(text: str) -> None:
+    log.warning(text)
 
 
 def saved_recognition(model: TrainedModel) -> RecognitionConfig:
@@ -703,12 +713,26 @@ def pose_belief_of(
     model: TrainedModel, recognition: RecognitionConfig | None, library: ObjectLibrary | None
 ) -> Callable[[], PoseBelief | None]:
     """A maker of fresh pose beliefs when `recognition.belief = pose` (one per recognition),
-    else of None; ConfigError now if the library cannot give every class's mesh."""
+    else of None. Without every class's mesh (objects trained on a robot without one, or no
+    library) or without a grasp likelihood, a warning says so and the session uses the grasp
+    likelihood, or the histogram, with the placement taken as known."""
     rc = recognition or saved_recognition(model)
-    if rc.belief != "pose":
+    if rc.belief != "pose" or model.likelihood is None:
         return lambda: None
-    if library is None:
-        raise ConfigError("recognition.belief=pose needs the object library (the classes' meshes)")
+    missing = (
+        list(model.class_names)
+        if library is None
+        else [n for n in model.class_names if n not in library]
+    )
+    if missing:
+        _warn_once(
+            "recognition.belief=pose: no mesh for "
+            + ", ".join(missing[:5])
+            + (" ..." if len(missing) > 5 else "")
+            + " in the object library: using the grasp likelihood, the placement taken as known"
+        )
+        return lambda: None
+    assert library is not None
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
     geom = ReflexGeometry()
@@ -726,7 +750,14 @@ def belief_table_of(
         return None
     model_l, params = lik
     out_grasp = model.observation.out_grasp
+    rc = recognition or saved_recognition(model)
     if len(out_grasp) != model.observation.n_outcomes or model.observation.n_outcomes == 0:
+        if rc.belief == "pose":
+            _warn_once(
+                "recognition.belief=pose: this model's observation model does not say which "
+                "training grasp each outcome is: the planner plans on the histogram"
+            )
+            return None
         raise ConfigError(
             "recognition.belief=grasp_likelihood: the observation model does not say which "
             "training grasp each outcome is (observation.granularity=grasp, trained by this "
