@@ -69,11 +69,12 @@ class RecognitionConfig:
     support_margin_m: float = 0.005
     seed: int = 0
     # What the session's p(y | ...) is (read when recognising, so eval can switch it):
-    # "histogram" (the paper: the classifier on the histogram of every triangle so far) or
+    # "histogram" (the paper: the classifier on the histogram of every triangle so far),
     # "grasp_likelihood" (Bayes over grasps, each weighed by p(grasp | y, wrist pose) from the
-    # training grasps near that pose; recognition/grasp_likelihood.py). The kernel widths
-    # (sensor scale and finger-angle width tuned on the hard library's seeds 100-119,
-    # docs/benchmark.md):
+    # training grasps near that pose; recognition/grasp_likelihood.py) or "pose" (the default:
+    # Bayes over class x where the object really stands, below; measured best under the real
+    # robot's errors, docs/benchmark.md "The default profile"). The kernel widths (sensor
+    # scale and finger-angle width tuned on the hard library's seeds 100-119):
     belief: Belief = "pose"
     likelihood_pose_sigma_m: float = 0.02
     likelihood_pose_sigma_deg: float = 12.0

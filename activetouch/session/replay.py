@@ -18,8 +18,14 @@ from activetouch.config import RecognitionConfig
 from activetouch.errors import DataError
 from activetouch.interfaces import Grasp, Pose
 from activetouch.model import TrainedModel
+from activetouch.objects.library import ObjectLibrary
 from activetouch.recordings.reader import Recording
-from activetouch.session.loop import NO_LABEL, BeliefTracker, grasp_likelihood_of
+from activetouch.session.loop import (
+    NO_LABEL,
+    BeliefTracker,
+    grasp_likelihood_of,
+    pose_belief_of,
+)
 
 
 @dataclass
@@ -55,9 +61,16 @@ def check_model(rec: Recording, model: TrainedModel) -> None:
         )
 
 
-def replay(rec: Recording, model: TrainedModel) -> Replay:
+def replay(rec: Recording, model: TrainedModel, library: ObjectLibrary | None = None) -> Replay:
+    """`library`: the classes' meshes for a recording made with the pose belief (default:
+    the library beside the recorded model, ``<data>/objects`` for ``<data>/models/NAME``)."""
     check_model(rec, model)
-    belief = BeliefTracker(model, grasp_likelihood_of(model, recorded_recognition(rec)))
+    rc = recorded_recognition(rec)
+    if library is None and (md := recorded_model_dir(rec)) is not None:
+        library = ObjectLibrary(md.parent.parent / "objects")
+    belief = BeliefTracker(
+        model, grasp_likelihood_of(model, rc), pose_belief_of(model, rc, library)()
+    )
     out = Replay()
     names = model.class_names
     for g in rec.grasps:

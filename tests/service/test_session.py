@@ -151,8 +151,10 @@ class NumbFirstHand:
 
 def test_no_label_until_something_is_felt(trained_home, small_model):
     # With an empty histogram p(y|h) is uniform; its argmax (class 0, the cup) must not count
-    # as a recognition of the cup.
+    # as a recognition of the cup. (The histogram belief: with the others an empty grasp is
+    # evidence already.)
     cfg = small_config()
+    cfg.recognition.belief = "histogram"
     events = []
     lib = ObjectLibrary(paths.objects_dir(trained_home))
     policy = make_policy(
@@ -167,6 +169,7 @@ def test_no_label_until_something_is_felt(trained_home, small_model):
             type(cfg.session)(max_moves=3, confidence=1.1),
             np.random.default_rng(0),
             on_progress=events.append,
+            recognition=cfg.recognition,
         )
         res = s.run()
     assert events[0].top == []  # no ranking of a uniform distribution

@@ -17,6 +17,7 @@ from rich.console import Console
 from activetouch import paths
 from activetouch.cli.main import add_common_options
 from activetouch.errors import DataError
+from activetouch.objects.library import ObjectLibrary
 from activetouch.recordings import format as fmt
 from activetouch.recordings.store import find_recording, list_recordings
 
@@ -300,7 +301,7 @@ def run_replay(args: argparse.Namespace) -> int:
             "recorded one: labels may differ",
             highlight=False,
         )
-    out = replay(rec, model)
+    out = replay(rec, model, ObjectLibrary(paths.objects_dir(root)))
     if args.json:
         json.dump(
             {
