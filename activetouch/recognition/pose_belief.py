@@ -80,6 +80,7 @@ def pose_grid(p: PoseParams) -> np.ndarray:
 # Distances beyond this are not needed exactly: both terms saturate (contact: under the floor;
 # free: the floor) well before it, and a bounded k-d tree query is ~30x faster.
 DISTANCE_CAP_M = 0.025
+SDF_VERSION = 1  # of the grid's construction: cached grids of another version are rebuilt
 
 
 @dataclass
@@ -108,6 +109,18 @@ class ClassShape:
         grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
         sd = sampled_signed_distance(pts, nrm, grid)
         return cls(lo, float(step), sd.reshape(shape).astype(np.float32))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {"origin": self.origin, "step": np.array([self.step]), "values": self.values}
+
+    @classmethod
+    def from_arrays(cls, d: dict[str, np.ndarray]) -> ClassShape:
+        origin = np.asarray(d["origin"], dtype=np.float64).reshape(3)
+        values = np.asarray(d["values"], dtype=np.float32)
+        step = float(np.asarray(d["step"]).reshape(-1)[0])
+        if values.ndim != 3 or min(values.shape) < 2 or not step > 0:
+            raise ValueError("malformed signed-distance grid")
+        return cls(origin, step, values)
 
     def signed_distance(self, p: np.ndarray) -> np.ndarray:
         """(M,) at points (M, 3); +cap outside the grid (farther than the cap from it)."""

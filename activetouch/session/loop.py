@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import io
 import logging
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
@@ -57,7 +59,8 @@ from activetouch.recognition.grasp_likelihood import (
     LikelihoodParams,
     softmax_belief,
 )
-from activetouch.recognition.pose_belief import ClassShape, PoseBelief, PoseParams
+from activetouch.recognition.pose_belief import SDF_VERSION, ClassShape, PoseBelief, PoseParams
+from activetouch.storage import atomic_write_bytes
 
 log = logging.getLogger(__name__)
 
@@ -688,11 +691,26 @@ def saved_recognition(model: TrainedModel) -> RecognitionConfig:
 
 @functools.lru_cache(maxsize=256)
 def _class_shape(mesh: str, mtime_ns: int) -> ClassShape:
+    """The mesh's signed-distance grid, from the file beside it when that is as new (a few
+    seconds per object to build: a daemon's first recognition should not wait for it)."""
+    cache = Path(mesh).with_name(f".sdf-v{SDF_VERSION}-{mtime_ns}.npz")
+    if cache.is_file():
+        try:
+            return ClassShape.from_arrays(dict(np.load(cache)))
+        except (OSError, ValueError, KeyError):
+            log.warning("%s: unreadable, rebuilt", cache)
     # deferred: loads trimesh
     import trimesh
 
     m = trimesh.load(mesh, force="mesh")
-    return ClassShape.from_mesh(m.vertices, m.faces)
+    shape = ClassShape.from_mesh(m.vertices, m.faces)
+    try:
+        buf = io.BytesIO()
+        np.savez(buf, **shape.to_arrays())
+        atomic_write_bytes(cache, buf.getvalue())
+    except OSError as e:  # a read-only library still works, only slower
+        log.info("could not cache %s (%s)", cache, e)
+    return shape
 
 
 def class_shapes(names: list[str], library: ObjectLibrary) -> list[ClassShape]:

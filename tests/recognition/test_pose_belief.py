@@ -124,3 +124,29 @@ def test_a_finger_that_closed_through_the_hypothesis_rules_it_out():
     zero = int(np.flatnonzero(np.all(belief.hyps == 0.0, axis=1))[0])
     assert lb[zero] < lb.max() - 5.0  # the nominal placement is ruled out
     assert lb.max() == 0.0  # somewhere nothing was in the way
+
+
+def test_a_signed_distance_grid_round_trips_and_a_bad_one_is_refused(box):
+    back = ClassShape.from_arrays(box.to_arrays())
+    q = np.random.default_rng(0).uniform(-0.08, 0.08, (50, 3))
+    assert np.array_equal(back.signed_distance(q), box.signed_distance(q))
+    with pytest.raises(ValueError):
+        ClassShape.from_arrays(
+            {"origin": np.zeros(3), "step": np.array([0.0]), "values": box.values}
+        )
+
+
+def test_the_session_caches_each_meshs_grid_beside_it(tmp_path):
+    from activetouch.objects.library import ObjectLibrary
+    from activetouch.session.loop import _class_shape, class_shapes
+
+    mesh = tmp_path / "box.obj"
+    trimesh.creation.box(extents=BOX).export(mesh)
+    lib = ObjectLibrary(tmp_path / "objects")
+    lib.add("box", mesh)
+    first = class_shapes(["box"], lib)[0]
+    cached = list((tmp_path / "objects" / "box").glob(".sdf-v*.npz"))
+    assert len(cached) == 1
+    _class_shape.cache_clear()
+    again = class_shapes(["box"], lib)[0]  # read from the file
+    assert np.array_equal(again.values, first.values)
