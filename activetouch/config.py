@@ -93,6 +93,10 @@ class RecognitionConfig:
     pose_free_margin_m: float = 0.003
     pose_free_sigma_m: float = 0.004
     pose_floor: float = 1e-3
+    # A Gaussian prior over the hypotheses (0: uniform over the grid): small offsets are
+    # likelier than large ones, so a look-alike turned far to hide its difference pays for it.
+    pose_prior_sigma_m: float = 0.0
+    pose_prior_sigma_deg: float = 0.0
     # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     pose_with_grasps: bool = True
 

@@ -36,6 +36,7 @@ from activetouch.recognition.grasp_likelihood import GraspLikelihood, Likelihood
 N_FINGERS = 3
 _SWEEP = (0.35, 0.7)  # fractions of each finger's closing angle it passed through freely
 _DEFAULTS = RecognitionConfig()
+_MAY_BE_ZERO = ("range_m", "range_deg", "free_margin_m", "prior_sigma_m", "prior_sigma_deg")
 
 
 @dataclass(frozen=True)
@@ -50,12 +51,14 @@ class PoseParams:
     free_margin_m: float = _DEFAULTS.pose_free_margin_m
     free_sigma_m: float = _DEFAULTS.pose_free_sigma_m
     floor: float = _DEFAULTS.pose_floor
+    prior_sigma_m: float = _DEFAULTS.pose_prior_sigma_m
+    prior_sigma_deg: float = _DEFAULTS.pose_prior_sigma_deg
 
     def __post_init__(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
             ok = isinstance(v, int | float) and np.isfinite(v)
-            ok = ok and (v >= 0 if f.name in ("range_m", "range_deg", "free_margin_m") else v > 0)
+            ok = ok and (v >= 0 if f.name in _MAY_BE_ZERO else v > 0)
             if not ok:
                 raise ConfigError(f"recognition.pose_{f.name} must be a number > 0, got {v!r}")
 
@@ -75,6 +78,16 @@ def pose_grid(p: PoseParams) -> np.ndarray:
     yaw = np.deg2rad(axis(p.range_deg, p.step_deg))
     g = np.stack(np.meshgrid(xy, xy, yaw, indexing="ij"), axis=-1).reshape(-1, 3)
     return g
+
+
+def log_prior(hyps: np.ndarray, p: PoseParams) -> np.ndarray:
+    """(H,) log p(h) up to a constant: Gaussian in dx, dy and yaw where a sigma is set."""
+    out = np.zeros(len(hyps))
+    if p.prior_sigma_m > 0:
+        out -= 0.5 * (hyps[:, 0] ** 2 + hyps[:, 1] ** 2) / p.prior_sigma_m**2
+    if p.prior_sigma_deg > 0:
+        out -= 0.5 * (hyps[:, 2] / np.deg2rad(p.prior_sigma_deg)) ** 2
+    return out
 
 
 # Distances beyond this are not needed exactly: both terms saturate (contact: under the floor;
@@ -285,7 +298,7 @@ class PoseBelief:
 
     def __post_init__(self) -> None:
         self.hyps = pose_grid(self.params)
-        self.log_b = np.zeros((len(self.shapes), len(self.hyps)))
+        self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
 
     def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
         contacts, free = grasp_points(grasp, pose, self.geometry)

@@ -52,7 +52,7 @@ def _running(pid: int) -> bool:
     return state not in ("Z", "X")  # a zombie has stopped; only its parent may reap it
 
 
-def _train(home: Path) -> subprocess.Popen:
+def _train(home: Path, err: Path) -> subprocess.Popen:
     return subprocess.Popen(
         [
             sys.executable,
@@ -67,7 +67,7 @@ def _train(home: Path) -> subprocess.Popen:
             str(home),
         ],
         stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        stderr=err.open("wb"),  # what a train that fails on its own said
     )
 
 
@@ -88,8 +88,9 @@ def test_kill_9_of_train_leaves_nothing_running_and_loses_nothing(tmp_path: Path
     ObjectLibrary(paths.objects_dir(home)).ensure_builtins(OBJECTS.split(","))
     rng = random.Random(7)
     saved = 0
-    for _ in range(5):
-        proc = _train(home)
+    for i in range(5):
+        err = tmp_path / f"train-{i}.err"
+        proc = _train(home, err)
         kids: set[int] = set()
         try:
             # Once the workers run, a random moment later. With the default grid an object
@@ -108,7 +109,8 @@ def test_kill_9_of_train_leaves_nothing_running_and_loses_nothing(tmp_path: Path
             # lucky run): then there is nothing to kill, and it must have ended well.
             proc.send_signal(signal.SIGKILL)
             rc = proc.wait(10)
-            assert rc in (0, -signal.SIGKILL), f"train failed on its own (exit {rc})"
+            said = err.read_text(errors="replace")[-2000:]
+            assert rc in (0, -signal.SIGKILL), f"train failed on its own (exit {rc}): {said}"
             finished_alone = rc == 0
         finally:
             if proc.poll() is None:
@@ -127,7 +129,8 @@ def test_kill_9_of_train_leaves_nothing_running_and_loses_nothing(tmp_path: Path
         saved = after
         if finished_alone:
             break
-    proc = _train(home)
-    assert proc.wait(300) == 0
+    err = tmp_path / "train-last.err"
+    proc = _train(home, err)
+    assert proc.wait(300) == 0, err.read_text(errors="replace")[-2000:]
     Dataset.open(paths.default_dataset(home)).verify()
     assert _grasps(home) >= saved
