@@ -99,6 +99,7 @@ class RecognitionConfig:
     pose_prior_sigma_deg: float = 0.0
     # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     pose_with_grasps: bool = True
+    pose_grasps_weight: float = 4.0  # that term's weight against the mesh's (log scale; tuned)
 
 
 @dataclass

@@ -36,7 +36,14 @@ from activetouch.recognition.grasp_likelihood import GraspLikelihood, Likelihood
 N_FINGERS = 3
 _SWEEP = (0.35, 0.7)  # fractions of each finger's closing angle it passed through freely
 _DEFAULTS = RecognitionConfig()
-_MAY_BE_ZERO = ("range_m", "range_deg", "free_margin_m", "prior_sigma_m", "prior_sigma_deg")
+_MAY_BE_ZERO = (
+    "range_m",
+    "range_deg",
+    "free_margin_m",
+    "prior_sigma_m",
+    "prior_sigma_deg",
+    "grasps_weight",
+)
 
 
 @dataclass(frozen=True)
@@ -53,6 +60,7 @@ class PoseParams:
     floor: float = _DEFAULTS.pose_floor
     prior_sigma_m: float = _DEFAULTS.pose_prior_sigma_m
     prior_sigma_deg: float = _DEFAULTS.pose_prior_sigma_deg
+    grasps_weight: float = _DEFAULTS.pose_grasps_weight
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -313,7 +321,7 @@ class PoseBelief:
             train = model_l.log_likelihood_at_poses(grasp, x, lp, ignore)  # (L, K)
             term = np.full(total.shape, float(train.min()))
             term[:, live] = train.T
-            total = total + term
+            total = total + self.params.grasps_weight * term
         self.log_b = total
 
     def class_log_belief(self) -> np.ndarray:
