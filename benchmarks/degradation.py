@@ -33,9 +33,10 @@ from activetouch.pipelines.evaluation import (
 )
 from activetouch.session.local import load_trained, model_path
 
-# name -> (what it is, settings). The placement levels are the bounds (2 cm, 15 deg)
-# and half of them; sensor levels are single faults of plausible size (threshold 20 units,
-# the twin's own noise 2 units), then everything at once.
+# name -> (what it is, settings). The placement levels are the bounds (2 cm, 15 deg),
+# half of them and the larger ones (3 cm, 30 deg: the pose belief's grid); sensor levels are
+# single faults of plausible size (threshold 20 units, the twin's own noise 2 units), then
+# everything at once.
 LEVELS: dict[str, tuple[str, list[str]]] = {
     "none": ("the nominal twin", []),
     "place_1cm_5deg": (
@@ -45,6 +46,10 @@ LEVELS: dict[str, tuple[str, list[str]]] = {
     "place_2cm_15deg": (
         "placement +-2 cm, +-15 deg",
         ["sim.placement_error_m=0.02", "sim.placement_error_deg=15"],
+    ),
+    "place_3cm_30deg": (
+        "placement +-3 cm, +-30 deg",
+        ["sim.placement_error_m=0.03", "sim.placement_error_deg=30"],
     ),
     "noise_5": ("pressure noise +5 units", ["sim.fault_noise_std=5"]),
     "noise_10": ("pressure noise +10 units", ["sim.fault_noise_std=10"]),
@@ -56,6 +61,17 @@ LEVELS: dict[str, tuple[str, list[str]]] = {
         [
             "sim.placement_error_m=0.02",
             "sim.placement_error_deg=15",
+            "sim.fault_noise_std=5",
+            "sim.fault_dead=4",
+            "sim.fault_stuck=1",
+            "sim.fault_spurious=0.02",
+        ],
+    ),
+    "all_3cm_30deg": (
+        "placement 3 cm/30 deg + noise 5 + 4 dead + 1 stuck + 2 % spurious",
+        [
+            "sim.placement_error_m=0.03",
+            "sim.placement_error_deg=30",
             "sim.fault_noise_std=5",
             "sim.fault_dead=4",
             "sim.fault_stuck=1",
