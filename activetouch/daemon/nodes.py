@@ -49,8 +49,10 @@ from activetouch.transport.messages import (
     MotionStats,
     MoveWristRequest,
     PreshapeRequest,
+    SensorFlagsMsg,
     SimPlaceRequest,
     SimPlaceResult,
+    ThresholdsRequest,
     encode,
     grasp_to_msg,
     hand_state_to_msg,
@@ -113,6 +115,18 @@ class HandNode(ServedNode):
             ),
             "state": Op(k.hand_state, Empty, lambda _r: hand_state_to_msg(hand.state())),
             "mask": Op(k.hand_mask, MaskRequest, lambda r: hand.mask_sensors(r.sensor_ids)),
+            "thresholds": Op(
+                k.hand_thresholds,
+                ThresholdsRequest,
+                lambda r: hand.set_contact_thresholds(r.thresholds),
+            ),
+            "sensor_flags": Op(
+                k.hand_sensor_flags,
+                Empty,
+                lambda _r: SensorFlagsMsg(
+                    flags={str(i): f for i, f in hand.sensor_flags().items()}
+                ),
+            ),
             # At once, beside a running grasp: the close ends within one control step.
             "stop": Op(k.hand_stop, Empty, lambda _r: hand.stop(), fast=True),
             "clear_stop": Op(k.hand_clear_stop, Empty, lambda _r: hand.clear_stop(), fast=True),

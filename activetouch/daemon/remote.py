@@ -45,8 +45,10 @@ from activetouch.transport.messages import (
     MoveWristRequest,
     PreshapeRequest,
     Reply,
+    SensorFlagsMsg,
     SimPlaceRequest,
     SimPlaceResult,
+    ThresholdsRequest,
     clip_text,
     decode,
     encode,
@@ -285,6 +287,14 @@ class RemoteHand(RemoteDevice, Hand):
     def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
         req = MaskRequest(sensor_ids=[int(i) for i in sensor_ids])
         return bool(self._call("mask", self.keys.hand_mask, req, bool))
+
+    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
+        req = ThresholdsRequest(thresholds=[float(t) for t in thresholds])
+        return bool(self._call("thresholds", self.keys.hand_thresholds, req, bool))
+
+    def sensor_flags(self) -> dict[int, str]:
+        msg = self._call("sensor_flags", self.keys.hand_sensor_flags, Empty(), SensorFlagsMsg)
+        return {int(k): v for k, v in msg.flags.items()}
 
     def preshape(self, angle: float) -> None:
         self._call(

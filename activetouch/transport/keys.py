@@ -10,6 +10,8 @@ widen a subscription or a query to other robots.
 | hand/open | queryable | Empty -> Reply[None] |
 | hand/preshape | queryable | PreshapeRequest -> Reply[None] |
 | hand/mask | queryable (sensors to ignore) | MaskRequest -> Reply[bool] |
+| hand/thresholds | queryable (noise thresholds) | ThresholdsRequest -> Reply[bool] |
+| hand/sensor_flags | queryable (tactile calibration flags) | Empty -> Reply[SensorFlagsMsg] |
 | hand/guarded_close | queryable | Empty -> Reply[GraspMsg] |
 | hand/stop | queryable (served at once, beside a running grasp) | Empty -> Reply[None] |
 | hand/clear_stop | queryable | Empty -> Reply[None] |
@@ -100,6 +102,14 @@ class Keys:
     @property
     def hand_mask(self) -> str:
         return self._k("hand", "mask")
+
+    @property
+    def hand_thresholds(self) -> str:
+        return self._k("hand", "thresholds")
+
+    @property
+    def hand_sensor_flags(self) -> str:
+        return self._k("hand", "sensor_flags")
 
     @property
     def hand_guarded_close(self) -> str:

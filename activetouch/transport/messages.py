@@ -61,10 +61,12 @@ __all__ = [
     "RecognizeRequest",
     "RecognizeResult",
     "Reply",
+    "SensorFlagsMsg",
     "SessionSummary",
     "SimPlaceRequest",
     "SimPlaceResult",
     "Status",
+    "ThresholdsRequest",
     "decode",
     "encode",
     "from_msg",
@@ -238,6 +240,21 @@ class MaskRequest(Message, kw_only=True):
     """The sensors the hand ignores from now on (replacing an earlier mask; [] none)."""
 
     sensor_ids: list[SensorId] = []
+
+
+class ThresholdsRequest(Message, kw_only=True):
+    """Per-sensor contact thresholds measured at rest (38, sensor units): the hand counts a
+    contact only above its own and its configured threshold, until set again."""
+
+    thresholds: Annotated[
+        list[NonNegFloat], msgspec.Meta(min_length=N_SENSORS, max_length=N_SENSORS)
+    ]
+
+
+class SensorFlagsMsg(Message, kw_only=True):
+    """Sensor id (as text) -> the flag the hand's tactile calibration gave it."""
+
+    flags: dict[str, str] = {}
 
 
 class MoveWristRequest(Message, kw_only=True):

@@ -516,3 +516,20 @@ def test_a_streaming_hand_is_published_beside_a_running_grasp(
     msg = latest.wait(10.0)  # generous: a loaded machine delays the delivery, not the publish
     assert msg.stale is True and msg.wall_stamp == 123.0
     t.join(5.0)
+
+
+def test_noise_thresholds_and_sensor_flags_cross_the_wire(
+    remote_hand: RemoteHand, hand: RecordingHand
+) -> None:
+    # A hand without them answers False / {} (the session then filters itself).
+    assert remote_hand.set_contact_thresholds([25.0] * 38) is False
+    assert remote_hand.sensor_flags() == {}
+    got: list[list[float]] = []
+    hand.set_contact_thresholds = lambda t: got.append(list(t)) or True  # type: ignore[method-assign]
+    hand.sensor_flags = lambda: {4: "dead", 30: "noisy"}  # type: ignore[method-assign]
+    thr = [20.0 + i for i in range(38)]
+    assert remote_hand.set_contact_thresholds(thr) is True
+    assert got == [thr]
+    assert remote_hand.sensor_flags() == {4: "dead", 30: "noisy"}
+    with pytest.raises(Exception, match="thresholds"):  # 38 values or an error reply
+        remote_hand.set_contact_thresholds([1.0] * 5)
