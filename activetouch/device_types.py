@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 
 HAND_TYPES: dict[str, str] = {
     "twin": "activetouch.sim.devices:TwinHandConfig",
+    "twin-bh8": "activetouch.sim.devices:TwinBH8HandConfig",
     "fake": "activetouch.fakes.replay:FakeHandConfig",
     "reflex-takktile": "activetouch.rigs.reflex_emulated:ReflexTakktileRigConfig",
     "reflex-sf": "activetouch.drivers.reflex.sf:ReflexSFConfig",

@@ -230,6 +230,12 @@ class Hand(abc.ABC):
         whose commands take as long as they take."""
         return None
 
+    @property
+    def n_sensors(self) -> int:
+        """How many tactile sensors the hand has (sensor ids are 0 .. n_sensors - 1): the
+        ReFlex's 38 unless the hand says otherwise (the BarrettHand's 96 cells)."""
+        return N_SENSORS
+
     @abc.abstractmethod
     def connect(self) -> None: ...
 
@@ -266,7 +272,7 @@ class Hand(abc.ABC):
         return {}
 
     def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
-        """Per-sensor contact thresholds (38, sensor units) measured from the noise at rest:
+        """Per-sensor contact thresholds (`n_sensors`, sensor units) measured from the noise at rest:
         a sensor counts as in contact only above its own and the hand's configured threshold,
         for stopping a finger and in the grasps, until set again. False: this hand cannot
         (the caller then drops the contacts under them from the grasps itself)."""
@@ -387,6 +393,10 @@ class HandWrapper(Hand):
     @property
     def robot_seconds(self) -> float | None:
         return self.inner.robot_seconds
+
+    @property
+    def n_sensors(self) -> int:
+        return self.inner.n_sensors
 
 
 class ArmWrapper(Arm):

@@ -27,10 +27,6 @@ poses them in the hand frame at given joint angles (`link_frames`).
 from __future__ import annotations
 
 import functools
-import hashlib
-import os
-import stat
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +35,13 @@ from typing import Final
 import numpy as np
 
 from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER
-from activetouch.storage import atomic_write_text
+from activetouch.models.urdf import (
+    Box,
+    box_link,
+    cached_urdf,
+    site_link,
+    urdf_joint,
+)
 
 N_PROXIMAL_SENSORS = 5
 N_DISTAL_SENSORS = 4
@@ -345,51 +347,6 @@ PROXIMAL_LINKS = ("proximal_1", "proximal_2", "proximal_3")
 DISTAL_LINKS = ("distal_1", "distal_2", "distal_3")
 
 
-@dataclass(frozen=True, eq=False)
-class Box:
-    """An oriented box: centre `position` and `rotation` (3x3, its axes as columns) in the
-    frame it is given in (its link's for `link_boxes`, the hand's for `collision_boxes`).
-    `name` is the box's (housing, pad, swivel_f, proximal_f, distal_f, fingertip_f, f the
-    finger's message index), `link` the URDF link that carries it."""
-
-    name: str
-    link: str
-    half: np.ndarray  # (3,) half extents along the box's axes
-    position: np.ndarray
-    rotation: np.ndarray
-
-    @classmethod
-    def from_bounds(
-        cls,
-        name: str,
-        link: str,
-        lo: np.ndarray | Sequence[float],
-        hi: np.ndarray | Sequence[float],
-    ) -> Box:
-        """The axis-aligned box between corners `lo` and `hi`."""
-        lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-        return cls(name, link, (hi - lo) / 2, (hi + lo) / 2, np.eye(3))
-
-    @property
-    def size(self) -> np.ndarray:
-        return 2 * self.half
-
-    @property
-    def pose(self) -> np.ndarray:
-        """4x4 pose of the box's centre frame."""
-        return transform(self.rotation, self.position)
-
-    def moved(self, t: np.ndarray) -> Box:
-        """This box in the frame where `t` (4x4) is the pose of the frame it is given in."""
-        r = t[:3, :3]
-        return Box(self.name, self.link, self.half, r @ self.position + t[:3, 3], r @ self.rotation)
-
-    def corners(self) -> np.ndarray:
-        """(8, 3) corners, x slowest: (-, -, -), (-, -, +), (-, +, -), ..."""
-        signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
-        return (signs * self.half) @ self.rotation.T + self.position
-
-
 def link_boxes(geom: ReflexGeometry) -> list[Box]:
     """Every collision box in its link's frame, in URDF link order: housing, pad, then per
     finger [swivel (fingers 0, 1)], proximal, distal, fingertip. The URDF is written from
@@ -471,86 +428,6 @@ def sensor_link_name(sensor: int) -> str:
     raise ValueError(f"no sensor {sensor}")
 
 
-def _f(v: float) -> str:
-    return f"{float(v):.6g}"
-
-
-def _xyz(v: np.ndarray | tuple[float, ...]) -> str:
-    return " ".join(_f(x) for x in v)
-
-
-def _box_inertia(mass: float, size: np.ndarray | tuple[float, ...]) -> str:
-    x, y, z = (float(v) for v in size)
-    ixx = mass * (y * y + z * z) / 12
-    iyy = mass * (x * x + z * z) / 12
-    izz = mass * (x * x + y * y) / 12
-    return f'<inertia ixx="{_f(ixx)}" ixy="0" ixz="0" iyy="{_f(iyy)}" iyz="0" izz="{_f(izz)}"/>'
-
-
-def _rpy(r: np.ndarray) -> tuple[float, float, float]:
-    """URDF roll, pitch, yaw (fixed-axis x, y, z) of a rotation matrix (pitch within +-pi/2)."""
-    return (
-        float(np.arctan2(r[2, 1], r[2, 2])),
-        float(np.arctan2(-r[2, 0], np.hypot(r[0, 0], r[1, 0]))),
-        float(np.arctan2(r[1, 0], r[0, 0])),
-    )
-
-
-def _box_shape(tag: str, box: Box) -> str:
-    # rpy only for a turned box: the axis-aligned ones print as they always have.
-    turned = not np.array_equal(box.rotation, np.eye(3))
-    rpy = f' rpy="{_xyz(_rpy(box.rotation))}"' if turned else ""
-    return (
-        f'    <{tag}><origin xyz="{_xyz(box.position)}"{rpy}/><geometry><box '
-        f'size="{_xyz(box.size)}"/></geometry></{tag}>\n'
-    )
-
-
-def _box_link(name: str, mass: float, boxes: list[Box]) -> str:
-    """A link of boxes, its inertia that of the first (a fingertip adds shape, not mass)."""
-    body = boxes[0]
-    shapes = "".join(_box_shape(tag, b) for b in boxes for tag in ("visual", "collision"))
-    return (
-        f'  <link name="{name}">\n'
-        f'    <inertial><origin xyz="{_xyz(body.position)}"/><mass value="{_f(mass)}"/>'
-        f"{_box_inertia(mass, body.size)}</inertial>\n"
-        f"{shapes}"
-        f"  </link>\n"
-    )
-
-
-def _site_link(name: str) -> str:
-    # Tiny inertia so the loader does not invent a 1 kg default; no geometry.
-    return (
-        f'  <link name="{name}"><inertial><mass value="1e-6"/>'
-        f'<inertia ixx="1e-12" ixy="0" ixz="0" iyy="1e-12" iyz="0" izz="1e-12"/>'
-        f"</inertial></link>\n"
-    )
-
-
-def _joint(
-    name: str,
-    kind: str,
-    parent: str,
-    child: str,
-    xyz: tuple[float, ...] | np.ndarray,
-    rpy: tuple[float, ...] = (0.0, 0.0, 0.0),
-    axis: tuple[float, float, float] | None = None,
-    limits: tuple[float, float] | None = None,
-) -> str:
-    s = f'  <joint name="{name}" type="{kind}">\n'
-    s += f'    <parent link="{parent}"/><child link="{child}"/>\n'
-    s += f'    <origin xyz="{_xyz(xyz)}" rpy="{_xyz(rpy)}"/>\n'
-    if axis is not None:
-        s += f'    <axis xyz="{_xyz(axis)}"/>\n'
-    if limits is not None:
-        s += (
-            f'    <limit lower="{_f(limits[0])}" upper="{_f(limits[1])}" effort="10" '
-            f'velocity="5"/>\n'
-        )
-    return s + "  </joint>\n"
-
-
 def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) -> str:
     """The hand's URDF text: boxes with the real sizes and masses, and (if `sensor_links`)
     a massless fixed link per sensor site. The twin loads it without the site links: 38 extra
@@ -561,18 +438,18 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
     for b in link_boxes(g):
         boxes.setdefault(b.link, []).append(b)
     parts = ['<?xml version="1.0"?>\n<robot name="reflex">\n']
-    parts.append(_box_link(BASE_LINK, g.base_mass, boxes[BASE_LINK]))
-    parts.append(_box_link(PAD_LINK, g.pad_mass, boxes[PAD_LINK]))
-    parts.append(_joint("pad_joint", "fixed", BASE_LINK, PAD_LINK, (0.0, 0.0, 0.0)))
+    parts.append(box_link(BASE_LINK, g.base_mass, boxes[BASE_LINK]))
+    parts.append(box_link(PAD_LINK, g.pad_mass, boxes[PAD_LINK]))
+    parts.append(urdf_joint("pad_joint", "fixed", BASE_LINK, PAD_LINK, (0.0, 0.0, 0.0)))
 
     prox_sites, dist_sites = finger_site_offsets(g)
     tilt = g.tip_sensor_tilt
     for f in range(N_FINGERS):
         if f < 2:
             swivel = SWIVEL_LINKS[f]
-            parts.append(_box_link(swivel, g.swivel_mass, boxes[swivel]))
+            parts.append(box_link(swivel, g.swivel_mass, boxes[swivel]))
             parts.append(
-                _joint(
+                urdf_joint(
                     PRESHAPE_JOINTS[f],
                     "revolute",
                     BASE_LINK,
@@ -587,9 +464,9 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
         else:
             prox_parent, prox_xyz = BASE_LINK, g.thumb_origin
             prox_rpy = (0.0, g.proximal_zero_pitch, g.thumb_yaw)
-        parts.append(_box_link(PROXIMAL_LINKS[f], g.proximal_mass, boxes[PROXIMAL_LINKS[f]]))
+        parts.append(box_link(PROXIMAL_LINKS[f], g.proximal_mass, boxes[PROXIMAL_LINKS[f]]))
         parts.append(
-            _joint(
+            urdf_joint(
                 PROXIMAL_JOINTS[f],
                 "revolute",
                 prox_parent,
@@ -600,9 +477,9 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
                 limits=(0.0, g.proximal_limit),
             )
         )
-        parts.append(_box_link(DISTAL_LINKS[f], g.distal_mass, boxes[DISTAL_LINKS[f]]))
+        parts.append(box_link(DISTAL_LINKS[f], g.distal_mass, boxes[DISTAL_LINKS[f]]))
         parts.append(
-            _joint(
+            urdf_joint(
                 DISTAL_JOINTS[f],
                 "revolute",
                 PROXIMAL_LINKS[f],
@@ -619,9 +496,9 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
             else:
                 parent, xyz = DISTAL_LINKS[f], dist_sites[s - N_PROXIMAL_SENSORS]
                 rpy = (0.0, tilt, 0.0) if s == SENSORS_PER_FINGER - 1 else (0.0, 0.0, 0.0)
-            parts.append(_site_link(sensor_link_name(sid)))
+            parts.append(site_link(sensor_link_name(sid)))
             parts.append(
-                _joint(
+                urdf_joint(
                     f"{sensor_link_name(sid)}_joint",
                     "fixed",
                     parent,
@@ -632,31 +509,14 @@ def build_urdf(geom: ReflexGeometry | None = None, sensor_links: bool = True) ->
             )
     for i, xyz in enumerate(palm_site_positions(g) if sensor_links else []):
         sid = N_FINGERS * SENSORS_PER_FINGER + i
-        parts.append(_site_link(sensor_link_name(sid)))
+        parts.append(site_link(sensor_link_name(sid)))
         parts.append(
-            _joint(f"{sensor_link_name(sid)}_joint", "fixed", PAD_LINK, sensor_link_name(sid), xyz)
+            urdf_joint(
+                f"{sensor_link_name(sid)}_joint", "fixed", PAD_LINK, sensor_link_name(sid), xyz
+            )
         )
     parts.append("</robot>\n")
     return "".join(parts)
-
-
-def private_cache_dir() -> Path:
-    """``/tmp/activetouch-<uid>``, made 0700 by this user; if someone else made it first (a
-    predictable name in a shared directory), or others may write to it, a fresh private one
-    instead: a planted URDF must never be loaded."""
-    root = Path(tempfile.gettempdir()) / f"activetouch-{os.getuid()}"
-    try:
-        root.mkdir(mode=0o700, exist_ok=True)
-        st = root.lstat()
-        if (
-            not stat.S_ISDIR(st.st_mode)
-            or st.st_uid != os.getuid()
-            or st.st_mode & (stat.S_IWGRP | stat.S_IWOTH)
-        ):
-            raise PermissionError(f"{root} is not a private directory of this user")
-    except OSError:
-        return Path(tempfile.mkdtemp(prefix="activetouch-"))
-    return root
 
 
 def urdf_file(
@@ -665,11 +525,4 @@ def urdf_file(
     """Write the URDF to a cache file named by its content hash (pybullet loads from files).
 
     Written atomically (temp file + rename), so concurrent worlds and processes are safe."""
-    text = build_urdf(geom, sensor_links)
-    digest = hashlib.sha256(text.encode()).hexdigest()[:16]
-    root = cache_dir or private_cache_dir()
-    root.mkdir(parents=True, exist_ok=True)
-    path = root / f"reflex_{digest}.urdf"
-    if not path.exists() or path.read_text() != text:
-        atomic_write_text(path, text)
-    return path
+    return cached_urdf(build_urdf(geom, sensor_links), "reflex", cache_dir)

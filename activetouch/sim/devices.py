@@ -58,6 +58,67 @@ class TwinHandConfig(HandConfig):
 
 
 @dataclass
+class TwinBH8HandConfig(HandConfig):
+    """The twin's BarrettHand BH8-280/282 (`activetouch.sim.bh8`); the world's settings
+    (seed, noise stream, errors, wrist tolerance) stay in ``[sim]``. The timing follows the
+    driver's defaults (`barrett-bh8`); the cell model is in the driver's units (raw / 256)."""
+
+    simulated: ClassVar[bool] = True
+
+    contact_threshold: float = 0.5  # the driver's `contact_threshold`
+    noise_std: float = 0.03  # cell units
+    contact_stiffness_n_per_m: float = 2000.0
+    pressure_per_newton: float = 3.3  # a 5 x 6 mm cell: N over its 0.3 cm^2
+    spread_sigma_m: float = 0.004  # load spreading in the pad's foam (cell pitch 5-6 mm)
+    breakaway_depth_m: float = 0.001  # the inner link this deep in something: TorqueSwitch
+    strain_depth_m: float = 0.003  # the outer link this deep off its pad: the strain stop
+    pad_depth_m: float = 0.002  # deepest press into a pad's foam before the finger stalls
+    substeps: int = 5
+    control_period_s: float = 0.02  # the driver's poll: one reading per step
+    close_velocity: float = 100.0  # counts per ms (the driver's)
+    cts: int = 4096  # encoder counts per motor revolution
+    finger_limit_counts: float = 190000.0
+    spread_limit_rad: float = 3.14
+    spread_speed_rad_s: float = 2.0
+
+    def check(self) -> None:
+        positive = (
+            "contact_threshold",
+            "contact_stiffness_n_per_m",
+            "pressure_per_newton",
+            "spread_sigma_m",
+            "breakaway_depth_m",
+            "strain_depth_m",
+            "pad_depth_m",
+            "control_period_s",
+            "close_velocity",
+            "finger_limit_counts",
+            "spread_speed_rad_s",
+        )
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+                raise ConfigError(f"hand.{name} must be > 0, got {v!r}")
+        if self.noise_std < 0 or self.substeps < 1 or self.cts < 1:
+            raise ConfigError("hand.noise_std must be >= 0, hand.substeps and hand.cts >= 1")
+        if not 0 < self.spread_limit_rad <= np.pi + 1e-6:
+            raise ConfigError(
+                f"hand.spread_limit_rad must be in (0, pi], got {self.spread_limit_rad}"
+            )
+
+    def make(self, ctx: DeviceContext) -> Hand:
+        rig = twin_rig(ctx)
+        return PacedHand(rig.hand, ctx.cfg.service.sim_motion_delay_s)
+
+    def default_grid(self) -> dict[str, Any]:
+        """`[grid]` values for the BH8's size where the configuration left them at the
+        ReFlex's: the palm face Dw above the wrist, the fingers already centred on the
+        approach axis (F1/F2 and F3 knuckles at -+50 mm), a closer palm (the BH8's 120 mm
+        fingers lie flat when open and reach 70 mm over the palm when the inner link stands)."""
+        return {"palm_offset_m": 0.084, "center_offset_m": 0.0, "margin_m": 0.05}
+
+
+@dataclass
 class TwinFloatingArmConfig(ArmConfig):
     """The twin's floating wrist (six joints: the hand pose in the base frame)."""
 
@@ -88,18 +149,38 @@ def reset_twin(world: Any, hand: Any, spec: Any, seed: int) -> None:
     hand.reseed(seed)
 
 
+def make_twin_world(hand: Any, sim: Any, workcell: Any) -> Any:
+    """The twin world for hand config `hand`: the BH8's for ``twin-bh8``, else the ReFlex's
+    (a fake hand on the twin arm moves the ReFlex's body)."""
+    if isinstance(hand, TwinBH8HandConfig):
+        from activetouch.sim.bh8 import BH8World  # deferred: loads pybullet
+
+        return BH8World(sim, workcell=workcell)
+    from activetouch.sim.world import SimWorld  # deferred: loads pybullet
+
+    return SimWorld(sim, workcell=workcell)
+
+
+def make_twin_hand(hand: Any, world: Any, sim: Any, seed: int | None = None) -> Any:
+    """The nominal twin hand on `world` (`make_twin_world`)."""
+    if isinstance(hand, TwinBH8HandConfig):
+        from activetouch.sim.bh8 import SimBH8Hand  # deferred: loads pybullet
+
+        return SimBH8Hand(world, hand, sim, seed)
+    from activetouch.sim.hand import SimHand  # deferred: loads pybullet
+
+    return SimHand(world, sim, seed)
+
+
 class TwinRig:
     """One twin world with its hand and floating arm, and the object library it places from."""
 
     def __init__(self, cfg: Config, data: Any) -> None:
         # deferred: loads pybullet
-        from activetouch.sim.hand import SimHand
+        from activetouch.sim.world import SimArm
 
-        # deferred: loads pybullet
-        from activetouch.sim.world import SimArm, SimWorld
-
-        self.world = SimWorld(cfg.sim, workcell=cfg.workcell)
-        self.hand = SimHand(self.world, cfg.sim)
+        self.world = make_twin_world(cfg.hand, cfg.sim, cfg.workcell)
+        self.hand = make_twin_hand(cfg.hand, self.world, cfg.sim)
         self.arm = SimArm(self.world)
         self.library_root = paths.objects_dir(paths.data_dir(data))
         # Called at the end of every `place` (e.g. an arm type bringing its arm home, as in a

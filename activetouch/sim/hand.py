@@ -110,6 +110,22 @@ def site_forces(
     return (stiffness * contact_depth) @ weight
 
 
+def pose_keyed_rng(world: SimWorld, seed: int) -> np.random.Generator:
+    """A noise stream seeded from what defines a grasp (seed, object, wrist pose, hand joint
+    angles), so a grasp does not depend on earlier grasps (``noise_mode = "pose"``)."""
+    w = world
+    obj = w.object
+    pose = w.wrist_pose.as_array()
+    if pose[6] < 0 or (pose[6] == 0 and pose[3:6][np.flatnonzero(pose[3:6])[:1]].sum() < 0):
+        pose[3:] = -pose[3:]  # q and -q are one rotation: one noise stream
+    key = np.concatenate([pose, [w.preshape_angle], w.proximal, w.distal])
+    text = f"{seed}|{obj.name if obj else ''}|" + ",".join(
+        f"{v:.6f}" for v in np.round(key, 6) + 0.0
+    )
+    digest = hashlib.sha256(text.encode()).digest()
+    return np.random.default_rng(int.from_bytes(digest[:16], "little"))
+
+
 @dataclass(frozen=True)
 class CloseResult:
     """Diagnostics of the last guarded close."""
@@ -381,18 +397,7 @@ class SimHand(Hand):
     def _grasp_rng(self) -> np.random.Generator:
         if self.cfg.noise_mode == "stream":
             return self._stream
-        # Seeded from what defines the grasp, so it does not depend on earlier grasps.
-        w = self.world
-        obj = w.object
-        pose = w.wrist_pose.as_array()
-        if pose[6] < 0 or (pose[6] == 0 and pose[3:6][np.flatnonzero(pose[3:6])[:1]].sum() < 0):
-            pose[3:] = -pose[3:]  # q and -q are one rotation: one noise stream
-        key = np.concatenate([pose, [w.preshape_angle], w.proximal, w.distal])
-        text = f"{self.seed}|{obj.name if obj else ''}|" + ",".join(
-            f"{v:.6f}" for v in np.round(key, 6) + 0.0
-        )
-        digest = hashlib.sha256(text.encode()).digest()
-        return np.random.default_rng(int.from_bytes(digest[:16], "little"))
+        return pose_keyed_rng(self.world, self.seed)
 
     def _read(self, contacts: HandContacts, rng: np.random.Generator) -> np.ndarray:
         return self._sense(contacts, rng)[0]

@@ -14,8 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from activetouch.config import SimConfig, WorkcellConfig
+from activetouch.device_types import HandConfig
 from activetouch.errors import ConfigError
-from activetouch.interfaces import N_SENSORS, Grasp
+from activetouch.interfaces import N_SENSORS, Grasp, Hand
 from activetouch.objects.library import ObjectSpec
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.floating import FloatingWristMotion
@@ -27,7 +28,12 @@ from activetouch.recognition.faults import (
     faulty_reading,
     spurious_contacts,
 )
-from activetouch.sim.devices import reset_twin
+from activetouch.sim.devices import (
+    TwinBH8HandConfig,
+    make_twin_hand,
+    make_twin_world,
+    reset_twin,
+)
 from activetouch.sim.hand import SimHand
 from activetouch.sim.world import HandContacts, SimArm, SimWorld
 
@@ -116,7 +122,7 @@ class FaultySimHand(SimHand):
 @dataclass
 class Twin:
     world: SimWorld
-    hand: SimHand
+    hand: Hand
     arm: SimArm
     wrist: FloatingWristMotion  # wrist poses in the object frame -> the arm's joints
     cfg: SimConfig | None = None  # for the placement error of `place()`
@@ -162,22 +168,31 @@ def open_twin(
     cfg: SimConfig,
     seed: int | None = None,
     workcell: WorkcellConfig | None = None,
+    hand: HandConfig | None = None,
 ) -> Iterator[Twin]:
     """A headless twin with `spec` placed on the table (none: an empty table), misplaced and
     with faulty sensors if `cfg` asks for the real robot's errors (drawn from `seed`, else
-    `cfg.seed`)."""
+    `cfg.seed`). `hand`: the configured hand (``twin-bh8`` gives the BarrettHand's twin;
+    anything else, or None, the ReFlex's)."""
     run_seed = cfg.seed if seed is None else int(seed)
     err = placement_error(cfg, run_seed)
     faults = sensor_faults(cfg)
-    world = SimWorld(cfg, workcell=workcell)
+    bh8 = isinstance(hand, TwinBH8HandConfig)
+    if bh8 and faults.active:
+        raise ConfigError(
+            "sim.fault_*: the sensor faults are modelled for the ReFlex's 38 sensors only, "
+            "not for hand.type=twin-bh8"
+        )
+    world = make_twin_world(hand, cfg, workcell)
     try:
         if spec is not None:
             place_displaced(world, spec, err)
         arm = SimArm(world)
-        hand = (
-            FaultySimHand(world, cfg, faults, seed) if faults.active else SimHand(world, cfg, seed)
-        )
-        yield Twin(world, hand, arm, TwinWrist(arm), cfg)
+        if faults.active:
+            hand_: SimHand = FaultySimHand(world, cfg, faults, seed)
+        else:
+            hand_ = make_twin_hand(hand, world, cfg, seed)
+        yield Twin(world, hand_, arm, TwinWrist(arm), cfg)
     finally:
         world.close()
 

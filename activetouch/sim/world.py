@@ -151,7 +151,7 @@ class SimWorld:
                 basePosition=[float(v) for v in self.workcell.table_center],
                 physicsClientId=c,
             )
-            path = urdf_file(self.geometry, urdf_cache)
+            path = self._hand_urdf(urdf_cache)
             self.hand = pb.loadURDF(
                 str(path), FAR_AWAY, [0, 0, 0, 1], useFixedBase=False, physicsClientId=c
             )
@@ -167,6 +167,7 @@ class SimWorld:
         self._preshape = float("nan")
         self._proximal = np.zeros(N_FINGERS)
         self._distal = np.zeros(N_FINGERS)
+        self._preshape_signs = self._spread_signs()
         self.set_hand(0.0, self._proximal, self._distal)
         self.open_fingers()
         self.set_wrist(self._wrist)
@@ -197,6 +198,14 @@ class SimWorld:
         if self.client is None:
             raise ActiveTouchError("the simulated world is closed")
         return self.client
+
+    def _hand_urdf(self, cache: Path | None) -> Path:
+        """The hand's URDF file (the ReFlex's; `sim.bh8.BH8World` loads the BarrettHand's)."""
+        return urdf_file(self.geometry, cache)
+
+    def _spread_signs(self) -> list[list[float]]:
+        """Joint values of the two preshape joints per unit of preshape (ReFlex: +-)."""
+        return [[1.0], [-1.0]]
 
     def _index_links(self) -> HandLinks:
         c = self.cid
@@ -366,7 +375,10 @@ class SimWorld:
         c = self.cid
         if preshape != self._preshape:  # NaN before the first call
             pb.resetJointStatesMultiDof(
-                self.hand, list(self.links.preshape), [[preshape], [-preshape]], physicsClientId=c
+                self.hand,
+                list(self.links.preshape),
+                [[preshape * s[0]] for s in self._preshape_signs],
+                physicsClientId=c,
             )
         pb.resetJointStatesMultiDof(
             self.hand,

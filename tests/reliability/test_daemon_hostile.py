@@ -218,7 +218,7 @@ def test_a_planted_cache_directory_is_not_used(tmp_path, monkeypatch) -> None:
     import os
     import tempfile
 
-    from activetouch.models.reflex import private_cache_dir
+    from activetouch.models.urdf import private_cache_dir
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     planted = tmp_path / f"activetouch-{os.getuid()}"

@@ -40,10 +40,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from activetouch.device_types import HandConfig
-from activetouch.drivers.barrett import codec, kinematics
+from activetouch.drivers.barrett import codec
 from activetouch.drivers.reflex.common import RateLimitedWarning, StreamLostError
 from activetouch.errors import ActiveTouchError, ConfigError, DeviceFaultError, StoppedError
 from activetouch.interfaces import Grasp, Hand, HandState, StopLatch
+from activetouch.models import bh8 as kinematics
 
 if TYPE_CHECKING:
     from activetouch.devices import DeviceContext
@@ -210,6 +211,10 @@ class BarrettBH8Hand(Hand):
         self._asm = {p: codec.TactileAssembler() for p in codec.HAND_PUCKS}
         self._latest: Reading | None = None
         self._seq = 0
+
+    @property
+    def n_sensors(self) -> int:
+        return kinematics.N_CELLS  # 96: sensor id = 24 * pad + cell
 
     # -- link -----------------------------------------------------------------------------
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from activetouch.drivers.barrett import kinematics as k
+from activetouch.models import bh8 as k
 
 
 def test_knuckles_where_the_public_models_put_them():
