@@ -478,6 +478,7 @@ def load_config(
     set_devices(cfg, devices)
     _check_choices(cfg)
     default_workcell(cfg)
+    default_grid(cfg)
     cfg.workcell.check()
     cfg.recording.check()
     cfg.ros2.check()
@@ -539,6 +540,16 @@ def default_workcell(cfg: Config) -> None:
     if values:
         cfg.workcell = WorkcellConfig(**values)
         log.info("arm.type=%s: using its default [workcell] %s", cfg.arm.type, values)
+
+
+def default_grid(cfg: Config) -> None:
+    """A hand of another size (the BH8) gets its own `[grid]` values for the settings the
+    configuration left at their defaults."""
+    values = cfg.hand.default_grid() or {}
+    base = GridConfig()
+    for key, value in values.items():
+        if getattr(cfg.grid, key) == getattr(base, key):
+            setattr(cfg.grid, key, value)
 
 
 def set_devices(cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVICE_SECTIONS) -> None:

@@ -42,6 +42,8 @@ ARM_TYPES: dict[str, str] = {
     "fake": "activetouch.fakes.replay:FakeArmConfig",
     "baxter": "activetouch.rigs.baxter_emulated:BaxterRigConfig",
 }
+# Sensors of each hand family (ids 0 .. n-1): the ReFlex's 38, the BarrettHand's 96 cells.
+FAMILY_SENSORS: dict[str, int] = {"reflex": 38, "bh8": 96}
 DEFAULT_HAND = "twin"
 DEFAULT_ARM = "twin-floating"
 
@@ -53,6 +55,9 @@ class DeviceConfig:
     # True for devices that stand in for the robot (twin, fake): recognitions on them place
     # the object through a served ``sim/place`` node instead of feeling what is on the table.
     simulated: ClassVar[bool] = False
+    # The hand a model is trained for (its sensors and geometry): a model trained on one
+    # family's grasps cannot classify another's ("reflex" or "bh8").
+    family: ClassVar[str] = "reflex"
 
     type: str = ""
 
@@ -61,6 +66,11 @@ class DeviceConfig:
 class HandConfig(DeviceConfig):
     def make(self, ctx: DeviceContext) -> Hand:
         raise NotImplementedError
+
+    def default_grid(self) -> dict[str, Any] | None:
+        """`[grid]` values for this hand's size, used for the ones the configuration left at
+        their (ReFlex) defaults; None: the defaults suit it."""
+        return None
 
 
 @dataclass

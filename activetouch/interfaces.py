@@ -272,10 +272,11 @@ class Hand(abc.ABC):
         return {}
 
     def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
-        """Per-sensor contact thresholds (`n_sensors`, sensor units) measured from the noise at rest:
-        a sensor counts as in contact only above its own and the hand's configured threshold,
-        for stopping a finger and in the grasps, until set again. False: this hand cannot
-        (the caller then drops the contacts under them from the grasps itself)."""
+        """Per-sensor contact thresholds (`n_sensors` of them, sensor units) measured from the
+        noise at rest: a sensor counts as in contact only above its own and the hand's
+        configured threshold, for stopping a finger and in the grasps, until set again. False:
+        this hand cannot (the caller then drops the contacts under them from the grasps
+        itself)."""
         return False
 
     @abc.abstractmethod

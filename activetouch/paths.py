@@ -44,8 +44,11 @@ def default_dataset(root: Path, variant: str = "") -> Path:
     return datasets_dir(root) / (f"{DEFAULT_DATASET}-{variant}" if variant else DEFAULT_DATASET)
 
 
-def default_model(root: Path) -> Path:
-    return models_dir(root) / DEFAULT_MODEL
+def default_model(root: Path, hand_family: str = "reflex") -> Path:
+    """The model `train` writes and `recognize` loads: ``models/default`` for the ReFlex,
+    ``models/default-<family>`` for another hand (a BH8 model cannot classify ReFlex grasps)."""
+    name = DEFAULT_MODEL if hand_family == "reflex" else f"{DEFAULT_MODEL}-{hand_family}"
+    return models_dir(root) / name
 
 
 def recordings_dir(root: Path) -> Path:

@@ -316,6 +316,25 @@ def sensor_positions(
     return out
 
 
+def grasp_free_sites(
+    geom: ReflexGeometry, preshape: float, proximal: np.ndarray, contact_ids: np.ndarray
+) -> np.ndarray:
+    """(F, 3) hand-frame points a grasp shows to be outside the object: the sensor sites it
+    left without contact at its final proximal angles (distal taken as 0: the grasp does not
+    report it), and every finger site at 35 % and 70 % of its finger's closing angle, which
+    the finger swept through freely on its way (the palm does not move)."""
+    angles = np.asarray(proximal, dtype=np.float64).reshape(N_FINGERS)
+    zeros = np.zeros(N_FINGERS)
+    final = sensor_positions(geom, preshape, angles, zeros)
+    quiet = np.ones(N_SENSORS, dtype=bool)
+    quiet[np.asarray(contact_ids, dtype=np.int64)] = False
+    free = [final[quiet]]
+    for frac in (0.35, 0.7):
+        swept = sensor_positions(geom, preshape, angles * frac, zeros)
+        free.append(swept[: N_FINGERS * SENSORS_PER_FINGER])
+    return np.concatenate(free)
+
+
 def coupled_joints(
     spool: np.ndarray,
     proximal_hold: np.ndarray,

@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
     console = Console(stderr=True)
     cfg = load_config(args.config, args.overrides)
     root = paths.data_dir(args.data)
-    mdir = model_path(root, args.model)
+    mdir = model_path(root, args.model, cfg.hand.family)
     model = load_trained(mdir)  # "no model ... train one first" before anything starts
     kernel = model.classifier.kernel()
     library = ObjectLibrary(paths.objects_dir(root))

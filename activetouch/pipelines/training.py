@@ -53,6 +53,8 @@ def dataset_meta(cfg: Config) -> dict:
         "sim": sim,
         "table": {"center": cfg.workcell.table_center, "size": cfg.workcell.table_size},
     }
+    if cfg.hand.family != "reflex":  # another hand's grasps (ReFlex datasets stay valid)
+        meta["hand"] = dataclasses.asdict(cfg.hand) | {"type": cfg.hand.type}
     if cfg.arm.type != FLOATING_ARM:
         # Which poses were reached depends on the arm and where the object stood.
         meta["arm"] = {
@@ -67,6 +69,8 @@ def dataset_variant(cfg: Config) -> str:
     """The default dataset's variant for `cfg` (paths.default_dataset): "" for the floating
     twin's tactile grasps, else what differs (e.g. "baxter", "stall", "baxter-stall")."""
     parts = []
+    if cfg.hand.family != "reflex":
+        parts.append(cfg.hand.family)
     if cfg.arm.type != FLOATING_ARM:
         parts.append(cfg.arm.type.removeprefix("twin-"))
     if cfg.sim.sensing != "tactile":
@@ -113,7 +117,7 @@ def _collect_into(
     attrs = {"extents": [float(v) for v in spec.extents], "set": spec.set}
     if cfg.arm.type != FLOATING_ARM:
         return _collect_on_devices(library_root, ds, name, grid, cfg, attrs, report)
-    with open_twin(spec, cfg.sim, seed=cfg.sim.seed, workcell=cfg.workcell) as twin:
+    with open_twin(spec, cfg.sim, seed=cfg.sim.seed, workcell=cfg.workcell, hand=cfg.hand) as twin:
         return collect_object(
             twin.hand,
             twin.wrist,

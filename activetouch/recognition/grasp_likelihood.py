@@ -13,7 +13,8 @@ grasps the observation model draws from): each training grasp j weighs
     w_j = exp(-|x - x_j|^2 / 2 s_x^2 - angle(x, x_j)^2 / 2 s_r^2)            (near in pose)
     k_j = exp(-hamming(sensors, sensors_j) / s_h - |theta - theta_j|^2 / 2 s_t^2)   (alike)
 
-with the sensors in contact as 38 bits and theta the three fingers' closing angles (how far a
+with the sensors in contact as bits (38 for the ReFlex, 96 for the BarrettHand: 64-bit words)
+and theta the three fingers' closing angles (how far a
 finger closed says how wide the object is where it touched). p(g | y, x) = sum w k / sum w,
 plus a floor so one odd grasp cannot rule a class out. A class with no training grasp near x
 gets the mean likelihood of those that have one (it has no say there).
@@ -29,7 +30,7 @@ from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError, DataError
 from activetouch.interfaces import Grasp, Pose
 
-N_SENSORS = 38  # ReFlex: 3 fingers x 9 + 11 palm; the bit mask needs <= 64
+MAX_SENSOR_ID = 1023  # sensor ids the masks take (words of 64 bits, as many as needed)
 _WEIGHT_CUTOFF = 1e-6  # training poses weighing less than this are left out of the sums
 
 
@@ -57,12 +58,23 @@ class LikelihoodParams:
         return cls(**{f.name: getattr(rc, f"likelihood_{f.name}") for f in fields(cls)})
 
 
-def sensor_mask(sensor_ids: np.ndarray) -> np.uint64:
-    """The sensors in contact as one 64-bit mask (bit i = sensor i)."""
+def mask_words(sensor_ids: np.ndarray) -> int:
+    """64-bit words a mask needs for these ids (at least one)."""
     ids = np.asarray(sensor_ids, dtype=np.int64).reshape(-1)
-    if len(ids) and (ids.min() < 0 or ids.max() >= 64):
-        raise DataError(f"sensor ids must be in [0, 64) for the likelihood, got {ids.tolist()}")
-    return np.uint64(np.bitwise_or.reduce(np.left_shift(np.uint64(1), ids.astype(np.uint64))))
+    return max(1, int(ids.max()) // 64 + 1) if len(ids) else 1
+
+
+def sensor_mask(sensor_ids: np.ndarray, words: int = 1) -> np.ndarray:
+    """The sensors in contact as a bit mask of `words` 64-bit words (bit i % 64 of word
+    i // 64 = sensor i)."""
+    ids = np.asarray(sensor_ids, dtype=np.int64).reshape(-1)
+    if len(ids) and (ids.min() < 0 or ids.max() >= 64 * words):
+        raise DataError(
+            f"sensor ids must be in [0, {64 * words}) for the likelihood, got {ids.tolist()}"
+        )
+    out = np.zeros(words, dtype=np.uint64)
+    np.bitwise_or.at(out, ids // 64, np.left_shift(np.uint64(1), (ids % 64).astype(np.uint64)))
+    return out
 
 
 def finger_closure(grasp: Grasp) -> np.ndarray:
@@ -94,7 +106,7 @@ class GraspLikelihood:
 
     poses: np.ndarray  # (G, 7) x y z qx qy qz qw, unit quaternions
     labels: np.ndarray  # (G,) int64 class index
-    masks: np.ndarray  # (G,) uint64
+    masks: np.ndarray  # (G, W) uint64: W words per grasp
     closure: np.ndarray  # (G, 3) float64
     n_classes: int
     # training_log_likelihoods per kernel widths (derived, so not compared or shown)
@@ -106,13 +118,19 @@ class GraspLikelihood:
     def fit(cls, per_object: list[tuple[np.ndarray, list[Grasp]]]) -> GraspLikelihood:
         """From each class's (poses (G, 7), grasps), classes in order."""
         poses, labels, masks, closure = [], [], [], []
+        all_ids = [g.sensor_ids for _, gs in per_object for g in gs]
+        words = mask_words(np.concatenate(all_ids)) if all_ids else 1
         for y, (p, grasps) in enumerate(per_object):
             p = np.asarray(p, dtype=np.float64).reshape(-1, 7)
             if len(p) != len(grasps):
                 raise DataError(f"class {y}: {len(p)} poses for {len(grasps)} grasps")
             poses.append(p)
             labels.append(np.full(len(p), y, dtype=np.int64))
-            masks.append(np.array([sensor_mask(g.sensor_ids) for g in grasps], dtype=np.uint64))
+            masks.append(
+                np.array(
+                    [sensor_mask(g.sensor_ids, words) for g in grasps], dtype=np.uint64
+                ).reshape(-1, words)
+            )
             closure.append(np.array([finger_closure(g) for g in grasps]).reshape(-1, 3))
         P = np.concatenate(poses)
         P[:, 3:] /= np.linalg.norm(P[:, 3:], axis=1, keepdims=True)
@@ -130,9 +148,19 @@ class GraspLikelihood:
         """log p(grasp | y, pose) for every class y (K,). `ignore`: sensor ids left out of
         the comparison on both sides (masked this recognition: what they say is not known)."""
         x = np.concatenate([np.asarray(pose.xyz, float), np.asarray(pose.quat, float)])
-        mask = np.array([sensor_mask(grasp.sensor_ids)], dtype=np.uint64)
-        keep = ~sensor_mask(ignore) if ignore is not None and len(ignore) else None
+        mask = self._mask(grasp.sensor_ids)[None]
+        keep = ~self._mask(ignore) if ignore is not None and len(ignore) else None
         return self._log_likelihood_many(mask, finger_closure(grasp)[None], x, params, keep)[0]
+
+    @property
+    def words(self) -> int:
+        return int(self.masks.shape[1])
+
+    def _mask(self, sensor_ids: np.ndarray) -> np.ndarray:
+        """(W,) mask of these ids; ids past the training grasps' words are dropped: no
+        training grasp saw them, so they say nothing here."""
+        ids = np.asarray(sensor_ids, dtype=np.int64).reshape(-1)
+        return sensor_mask(ids[ids < 64 * self.words], self.words)
 
     def log_likelihood_at_poses(
         self,
@@ -163,10 +191,10 @@ class GraspLikelihood:
         ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
         w = np.exp(-d2 / (2.0 * s_m**2) - ang**2 / (2.0 * s_r**2))
         w[w <= _WEIGHT_CUTOFF] = 0.0
-        diff = self.masks[cand] ^ sensor_mask(grasp.sensor_ids)
+        diff = self.masks[cand] ^ self._mask(grasp.sensor_ids)
         if ignore is not None and len(ignore):
-            diff = diff & ~sensor_mask(ignore)
-        ham = np.bitwise_count(diff).astype(float)
+            diff = diff & ~self._mask(ignore)
+        ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
         dth = np.sum((self.closure[cand] - finger_closure(grasp)) ** 2, axis=1)
         k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
         onehot = np.zeros((len(cand), K))
@@ -207,17 +235,17 @@ class GraspLikelihood:
         closure: np.ndarray,
         x: np.ndarray,
         params: LikelihoodParams,
-        keep: np.uint64 | None = None,
+        keep: np.ndarray | None = None,
     ) -> np.ndarray:
-        """(n, K) log-likelihoods of n grasps (masks (n,), closure (n, 3)) all made at `x`;
+        """(n, K) log-likelihoods of n grasps (masks (n, W), closure (n, 3)) all made at `x`;
         `keep`: the sensor bits compared (all if None)."""
         w = pose_weights(self.poses, x, params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg))
         near = np.flatnonzero(w > _WEIGHT_CUTOFF)
         w = w[near]
-        diff = self.masks[near][None, :] ^ masks[:, None]
+        diff = self.masks[near][None, :, :] ^ masks[:, None, :]
         if keep is not None:
             diff = diff & keep
-        ham = np.bitwise_count(diff).astype(float)
+        ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
         dth = np.sum((self.closure[near][None, :, :] - closure[:, None, :]) ** 2, axis=2)
         k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
         onehot = np.zeros((len(near), self.n_classes))
@@ -248,7 +276,7 @@ class GraspLikelihood:
             out = cls(
                 np.asarray(d["poses"], dtype=np.float64),
                 np.asarray(d["labels"], dtype=np.int64),
-                np.asarray(d["masks"], dtype=np.uint64),
+                _as_words(np.asarray(d["masks"], dtype=np.uint64)),
                 np.asarray(d["closure"], dtype=np.float64),
                 int(np.asarray(d["n_classes"]).reshape(-1)[0]),
             )
@@ -257,8 +285,13 @@ class GraspLikelihood:
         except (IndexError, TypeError, ValueError) as e:
             raise DataError(f"grasp likelihood arrays: malformed ({e})") from None
         G = len(out.labels)
-        if out.poses.shape != (G, 7) or out.masks.shape != (G,) or out.closure.shape != (G, 3):
+        if out.poses.shape != (G, 7) or len(out.masks) != G or out.closure.shape != (G, 3):
             raise DataError("grasp likelihood arrays differ in length")
         if G and (out.labels.min() < 0 or out.labels.max() >= out.n_classes):
             raise DataError("grasp likelihood labels out of range")
         return out
+
+
+def _as_words(masks: np.ndarray) -> np.ndarray:
+    """(G, W) masks; a model saved with one word per grasp stored them as (G,)."""
+    return masks.reshape(-1, 1) if masks.ndim == 1 else masks

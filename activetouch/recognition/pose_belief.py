@@ -20,6 +20,7 @@ sample's face normal: enough for the closed meshes of the library, and a k-d tre
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -28,13 +29,16 @@ from scipy.spatial.transform import Rotation
 
 from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError
-from activetouch.interfaces import N_SENSORS, SENSORS_PER_FINGER, Grasp, Pose
-from activetouch.models.reflex import ReflexGeometry, sensor_positions
+from activetouch.interfaces import Grasp, Pose
+from activetouch.models import bh8, reflex
+from activetouch.models.reflex import ReflexGeometry
 from activetouch.recognition.contacts import hand_to_object
-from activetouch.recognition.grasp_likelihood import GraspLikelihood, LikelihoodParams
+from activetouch.recognition.grasp_likelihood import (
+    GraspLikelihood,
+    LikelihoodParams,
+    finger_closure,
+)
 
-N_FINGERS = 3
-_SWEEP = (0.35, 0.7)  # fractions of each finger's closing angle it passed through freely
 _DEFAULTS = RecognitionConfig()
 _MAY_BE_ZERO = (
     "range_m",
@@ -199,23 +203,32 @@ def in_object_frames(points: np.ndarray, hyps: np.ndarray) -> np.ndarray:
     return np.einsum("hji,hmj->hmi", r, points[None, :, :] - t)  # R^T (p - t)
 
 
-def grasp_points(grasp: Grasp, pose: Pose, geom: ReflexGeometry) -> tuple[np.ndarray, np.ndarray]:
+# Where a grasp shows the object is not: hand-frame points from the grasp (its hand's model).
+FreeSites = Callable[[Grasp], np.ndarray]
+
+
+def reflex_free_sites(geom: ReflexGeometry | None = None) -> FreeSites:
+    g = geom or ReflexGeometry()
+    return lambda grasp: reflex.grasp_free_sites(
+        g, grasp.preshape, finger_closure(grasp), grasp.sensor_ids
+    )
+
+
+def bh8_free_sites(grasp: Grasp) -> np.ndarray:
+    return bh8.grasp_free_sites(grasp.preshape, finger_closure(grasp), grasp.sensor_ids)
+
+
+def free_sites_for(family: str) -> FreeSites:
+    """The free-space points of hand family `family` ("reflex" or "bh8")."""
+    return bh8_free_sites if family == "bh8" else reflex_free_sites()
+
+
+def grasp_points(grasp: Grasp, pose: Pose, free_sites: FreeSites) -> tuple[np.ndarray, np.ndarray]:
     """(contacts (C, 3), free (F, 3)) in the nominal object frame: the contacts the grasp
-    reported, and the sensor sites it left without contact plus those every finger swept
-    through on its way (`_SWEEP` of its closing angle)."""
+    reported, and the points its hand's model says the grasp found free (sensor sites left
+    without contact, and those the fingers swept through on their way)."""
     contacts = hand_to_object(pose, np.asarray(grasp.xyz, dtype=np.float64).reshape(-1, 3))
-    angles = np.zeros(N_FINGERS)
-    a = np.asarray(grasp.finger_angles, dtype=np.float64).reshape(-1)[:N_FINGERS]
-    angles[: len(a)] = a
-    zeros = np.zeros(N_FINGERS)
-    final = sensor_positions(geom, grasp.preshape, angles, zeros)
-    quiet = np.ones(N_SENSORS, dtype=bool)
-    quiet[np.asarray(grasp.sensor_ids, dtype=np.int64)] = False
-    free = [final[quiet]]
-    for frac in _SWEEP:
-        swept = sensor_positions(geom, grasp.preshape, angles * frac, zeros)
-        free.append(swept[: N_FINGERS * SENSORS_PER_FINGER])  # the palm does not move
-    return contacts, hand_to_object(pose, np.concatenate(free))
+    return contacts, hand_to_object(pose, free_sites(grasp))
 
 
 def grasp_log_likelihood(
@@ -301,7 +314,7 @@ class PoseBelief:
 
     shapes: list[ClassShape]
     params: PoseParams
-    geometry: ReflexGeometry
+    free_sites: FreeSites
     grasps: tuple[GraspLikelihood, LikelihoodParams] | None = None
 
     def __post_init__(self) -> None:
@@ -309,7 +322,7 @@ class PoseBelief:
         self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
 
     def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
-        contacts, free = grasp_points(grasp, pose, self.geometry)
+        contacts, free = grasp_points(grasp, pose, self.free_sites)
         total = self.log_b + grasp_log_likelihood(
             self.shapes, self.hyps, contacts, free, self.params
         )

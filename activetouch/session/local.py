@@ -34,8 +34,8 @@ if TYPE_CHECKING:
     from activetouch.recordings.writer import SafeRecorder
 
 
-def model_path(root: Path, explicit: str | None) -> Path:
-    return Path(explicit) if explicit else paths.default_model(root)
+def model_path(root: Path, explicit: str | None, hand_family: str = "reflex") -> Path:
+    return Path(explicit) if explicit else paths.default_model(root, hand_family)
 
 
 def load_trained(path: Path) -> TrainedModel:
@@ -108,7 +108,7 @@ def recognize_in_twin(
             cancel,
             recorder,
         )
-    with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
+    with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell, hand=cfg.hand) as twin:
         if recorder is not None:
             pl = twin.wrist.placement
             recorder.placement(placement_pose(pl.xyz, pl.yaw_rad))

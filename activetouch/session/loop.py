@@ -39,6 +39,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from activetouch.config import RecognitionConfig, SessionConfig
+from activetouch.device_types import DEFAULT_HAND, FAMILY_SENSORS, config_class
 from activetouch.errors import (
     ActiveTouchError,
     ConfigError,
@@ -47,7 +48,6 @@ from activetouch.errors import (
 )
 from activetouch.interfaces import N_SENSORS, Grasp, Hand, Pose
 from activetouch.model import TrainedModel
-from activetouch.models.reflex import ReflexGeometry
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
@@ -59,7 +59,13 @@ from activetouch.recognition.grasp_likelihood import (
     LikelihoodParams,
     softmax_belief,
 )
-from activetouch.recognition.pose_belief import SDF_VERSION, ClassShape, PoseBelief, PoseParams
+from activetouch.recognition.pose_belief import (
+    SDF_VERSION,
+    ClassShape,
+    PoseBelief,
+    PoseParams,
+    free_sites_for,
+)
 from activetouch.storage import atomic_write_bytes
 
 log = logging.getLogger(__name__)
@@ -352,6 +358,7 @@ class RecognitionSession:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
             raise ConfigError(f"session.stable_grasps must be >= 1, got {cfg.stable_grasps}")
+        check_model_hand(model, hand)
         self.hand, self.wrist, self.model, self.policy = hand, wrist, model, policy
         self.cfg, self.rng = cfg, rng
         self.on_progress = on_progress
@@ -397,7 +404,7 @@ class RecognitionSession:
         sensor's rest level plus `session.noise_k` sigma."""
         self._hand(self.hand.open)
         rest = self._read_at_rest()
-        why = mask_reasons(self.hand.sensor_flags(), rest)
+        why = mask_reasons(self.hand.sensor_flags(), rest, len(rest.mean))
         ids = np.array(sorted(why), dtype=np.int64)
         self._masked = ids
         self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
@@ -651,6 +658,28 @@ class RecognitionSession:
         return res
 
 
+def model_hand_family(model: TrainedModel) -> str:
+    """The hand family the model was trained for ("reflex" unless its config names another
+    hand type's family; models from before hand families are the ReFlex's)."""
+    hand_type = model.config.get("hand", {}).get("type", DEFAULT_HAND)
+    try:
+        return config_class("hand", str(hand_type)).family
+    except ConfigError:
+        return "reflex"
+
+
+def check_model_hand(model: TrainedModel, hand: Hand) -> None:
+    """ConfigError unless the hand has the sensors the model was trained with."""
+    family = model_hand_family(model)
+    expected = FAMILY_SENSORS.get(family, N_SENSORS)
+    if hand.n_sensors != expected:
+        raise ConfigError(
+            f"the model was trained for the {family} hand ({expected} sensors) and this hand "
+            f"has {hand.n_sensors}: train a model for it (`activetouch train --set "
+            "hand.type=...`, written to its own models/default-<hand>) or pass --model"
+        )
+
+
 def grasp_likelihood_of(
     model: TrainedModel, recognition: RecognitionConfig | None
 ) -> tuple[GraspLikelihood, LikelihoodParams] | None:
@@ -753,9 +782,9 @@ def pose_belief_of(
     assert library is not None
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
-    geom = ReflexGeometry()
+    free = free_sites_for(model_hand_family(model))
     grasps = grasp_likelihood_of(model, rc) if rc.pose_with_grasps else None
-    return lambda: PoseBelief(shapes, params, geom, grasps)
+    return lambda: PoseBelief(shapes, params, free, grasps)
 
 
 def belief_table_of(

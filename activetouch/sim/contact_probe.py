@@ -99,7 +99,7 @@ def probe_object(spec, cfg: Config, seed: int = 0) -> ContactShare:
     grid = training_grid(spec.extents, cfg.grid)
     grasps: list[Grasp] = []
     unreachable = 0
-    with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell) as twin:
+    with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell, hand=cfg.hand) as twin:
         for i in range(len(grid)):
             pose = Pose.from_array(grid.poses[i])
             twin.hand.open()

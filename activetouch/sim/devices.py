@@ -64,6 +64,7 @@ class TwinBH8HandConfig(HandConfig):
     driver's defaults (`barrett-bh8`); the cell model is in the driver's units (raw / 256)."""
 
     simulated: ClassVar[bool] = True
+    family: ClassVar[str] = "bh8"
 
     contact_threshold: float = 0.5  # the driver's `contact_threshold`
     noise_std: float = 0.03  # cell units
@@ -110,7 +111,7 @@ class TwinBH8HandConfig(HandConfig):
         rig = twin_rig(ctx)
         return PacedHand(rig.hand, ctx.cfg.service.sim_motion_delay_s)
 
-    def default_grid(self) -> dict[str, Any]:
+    def default_grid(self) -> dict[str, Any] | None:
         """`[grid]` values for the BH8's size where the configuration left them at the
         ReFlex's: the palm face Dw above the wrist, the fingers already centred on the
         approach axis (F1/F2 and F3 knuckles at -+50 mm), a closer palm (the BH8's 120 mm

@@ -18,6 +18,7 @@ from activetouch.recognition.pose_belief import (
     PoseParams,
     in_object_frames,
     pose_grid,
+    reflex_free_sites,
 )
 
 BOX = (0.10, 0.06, 0.08)
@@ -77,7 +78,7 @@ def _contacts_on(extents, dx, dy, yaw_deg, n, seed) -> np.ndarray:
 
 def test_a_misplaced_box_is_found_and_told_from_a_larger_one(box):
     larger = _shape((0.12, 0.06, 0.08))
-    belief = PoseBelief([box, larger], PoseParams(), ReflexGeometry())
+    belief = PoseBelief([box, larger], PoseParams(), reflex_free_sites())
     # Palm far above (hand frame = object frame shifted up 1 m): its quiet sites say nothing.
     up = Pose([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
     truth = (0.02, -0.01, 15.0)
@@ -108,7 +109,7 @@ def test_a_finger_that_closed_through_the_hypothesis_rules_it_out():
     from activetouch.models.reflex import sensor_positions
 
     cube = _shape((0.03, 0.03, 0.03))
-    belief = PoseBelief([cube], PoseParams(), ReflexGeometry())
+    belief = PoseBelief([cube], PoseParams(), reflex_free_sites())
     angles = np.full(3, 1.2)
     swept = sensor_positions(ReflexGeometry(), 0.0, angles * 0.7, np.zeros(3))
     at = Pose(-swept[2], [0.0, 0.0, 0.0, 1.0])  # finger 0's third site passed the origin

@@ -145,9 +145,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
     overrides = [*args.overrides, *error_overrides(args.placement_error, args.sensor_faults)]
     root = paths.data_dir(args.data)
+    family = load_config(args.config, overrides).hand.family
     evaluate(
         root,
-        model_path(root, args.model),
+        model_path(root, args.model, family),
         parse_objects(args.objects) if args.objects else None,
         policies,
         parse_seeds(args.seeds),

@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     budget = args.max_moves if args.max_moves is not None else cfg.session.max_moves
     check_request(policy, budget, args.seed)
     console.print(f"profile {profile_line(cfg)}", highlight=False)
-    model = load_trained(model_path(root, args.model))
+    model = load_trained(model_path(root, args.model, cfg.hand.family))
     library = ObjectLibrary(paths.objects_dir(root))
     library.get(args.object)  # an unknown object fails here, before anything runs
     if args.object not in model.class_names:
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
             seed=args.seed,
             object_name=args.object,
             model=model,
-            model_dir=model_path(root, args.model),
+            model_dir=model_path(root, args.model, cfg.hand.family),
         )
     try:
         res = recognize_in_twin(

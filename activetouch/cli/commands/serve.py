@@ -192,7 +192,7 @@ def run_serve(args: argparse.Namespace) -> int:
         mode=resolve_mode(args.mode, cfg),
         role=args.role,
         data=root,
-        model_dir=model_path(root, args.model),
+        model_dir=model_path(root, args.model, cfg.hand.family),
         cfg=cfg,
     )
     setup_logging(args.log_format, args.log_level)

@@ -70,7 +70,7 @@ def train(
     with console.status("preparing the object library"):
         library.ensure_builtins()
     dataset = dataset or paths.default_dataset(root, dataset_variant(cfg))
-    out = out or paths.default_model(root)
+    out = out or paths.default_model(root, cfg.hand.family)
     console.print(f"profile {profile_line(cfg)}", highlight=False)
 
     t0 = time.perf_counter()

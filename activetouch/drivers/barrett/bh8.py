@@ -35,7 +35,7 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -66,6 +66,8 @@ class PuckFaultError(DeviceFaultError):
 @dataclass
 class BarrettBH8Config(HandConfig):
     """Settings of a BarrettHand BH8-280/282 on a CAN bus (docs/drivers.md)."""
+
+    family: ClassVar[str] = "bh8"
 
     can_interface: str = "socketcan"  # python-can interface; "virtual" for the emulator
     can_channel: str = "can0"
