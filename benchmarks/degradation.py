@@ -186,7 +186,8 @@ def main(argv: list[str] | None = None) -> int:
     if "none" not in levels:
         levels.insert(0, "none")  # the reference every level is paired with
     root = paths.data_dir(args.data)
-    model_dir = model_path(root, args.model)
+    family = load_config(None, args.set).hand.family  # the hand's own default model
+    model_dir = model_path(root, args.model, family)
     model = load_trained(model_dir)
     objects = args.objects.split(",") if args.objects else list(model.class_names)
     seeds = parse_seeds(args.seeds)

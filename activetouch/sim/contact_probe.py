@@ -75,7 +75,12 @@ def advice(shares: Sequence[ContactShare], cfg: Config) -> list[str]:
             f"{MIN_CONTACTS} contacts (mean {s.mean_contacts:.1f}); such grasps make no "
             "triangle and teach the classifier nothing."
         )
-        if not grid_is_small_object(cfg):
+        if cfg.hand.family != "reflex":
+            out.append(
+                f"{head} The small-object grid is the ReFlex's; for this hand bring the palm "
+                f"closer (--set grid.margin_m=..., now {cfg.grid.margin_m}) or leave it out."
+            )
+        elif not grid_is_small_object(cfg):
             sets = " ".join(f"--set {o}" for o in small_object_overrides())
             out.append(
                 f"{head} Use the small-object grid (palm closer, fingers off the table): {sets} "

@@ -42,10 +42,40 @@ def two_classes() -> GraspLikelihood:
 
 
 def test_sensor_mask_sets_one_bit_per_sensor() -> None:
-    assert sensor_mask(np.array([0, 3, 37])) == np.uint64(1 + 8 + 2**37)
-    assert sensor_mask(np.array([], dtype=np.int64)) == np.uint64(0)
+    assert sensor_mask(np.array([0, 3, 37])).tolist() == [1 + 8 + 2**37]
+    assert sensor_mask(np.array([], dtype=np.int64)).tolist() == [0]
     with pytest.raises(DataError):
         sensor_mask(np.array([64]))
+
+
+def test_masks_past_64_sensors_take_more_words_and_count_every_bit() -> None:
+    """The BarrettHand's 96 cells: the likelihood of a grasp is that of its Hamming distance
+    to each training grasp, counted here from the id sets themselves."""
+    m = sensor_mask(np.array([1, 63, 64, 95]), words=2)
+    assert m.tolist() == [2 + 2**63, 1 + 2**31]
+    with pytest.raises(DataError):
+        sensor_mask(np.array([128]), words=2)
+    rng = np.random.default_rng(3)
+    train = [sorted(rng.choice(96, size=int(rng.integers(0, 12)), replace=False)) for _ in range(6)]
+    lik = GraspLikelihood.fit(
+        [
+            (np.stack([pose_at(0.0)] * 3), [grasp(t) for t in train[:3]]),
+            (np.stack([pose_at(0.0)] * 3), [grasp(t) for t in train[3:]]),
+        ]
+    )
+    assert lik.words == 2
+    p = LikelihoodParams(sensor_scale=2.0, floor=1e-9)
+    felt = [2, 70, 71, 90]
+    got = lik.log_likelihood(grasp(felt), Pose(pose_at(0.0)[:3], IDENTITY), p)
+    ham = [len(set(t) ^ set(felt)) for t in train]  # closure is equal: only the bits differ
+    want = [np.log(np.mean(np.exp(-np.array(ham[k : k + 3]) / 2.0)) + 1e-9) for k in (0, 3)]
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+    # Ignoring cells leaves them out on both sides.
+    ignore = np.array([70, 90])
+    got = lik.log_likelihood(grasp(felt), Pose(pose_at(0.0)[:3], IDENTITY), p, ignore)
+    ham = [len((set(t) ^ set(felt)) - {70, 90}) for t in train]
+    want = [np.log(np.mean(np.exp(-np.array(ham[k : k + 3]) / 2.0)) + 1e-9) for k in (0, 3)]
+    np.testing.assert_allclose(got, want, rtol=1e-9)
 
 
 def test_pose_weights_fall_with_distance_and_angle() -> None:

@@ -135,8 +135,8 @@ def train(
             "placement, or where the open hand would meet the table or the object; they are "
             "skipped, as on the robot"
             if arm
-            else "unreachable: poses where the open hand (fingers flat, ~0.38 m across) would "
-            "meet the table; they are skipped, as on the robot",
+            else "unreachable: poses where the open hand (fingers flat: the ReFlex ~0.38 m "
+            "across, the BH8 ~0.29 m) would meet the table; they are skipped, as on the robot",
             highlight=False,
         )
     obs = model.observation
