@@ -45,7 +45,15 @@ class DeviceNodes:
             self.links = [hand_link, arm_link]
         try:
             self.nodes.append(
-                HandNode(devices.hand, session, robot, state_hz=state_hz, lock=lock, link=hand_link)
+                HandNode(
+                    devices.hand,
+                    session,
+                    robot,
+                    state_hz=state_hz,
+                    lock=lock,
+                    link=hand_link,
+                    device=cfg.hand.type,
+                )
             )
             self.nodes.append(
                 ArmNode(

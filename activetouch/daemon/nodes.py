@@ -32,6 +32,7 @@ from activetouch.daemon.serving import JSON, MAX_STREAM_HZ, Op, ServedNode
 from activetouch.daemon.supervision import DeviceLink
 from activetouch.errors import (
     ActiveTouchError,
+    MessageError,
 )
 from activetouch.interfaces import (
     Arm,
@@ -44,6 +45,7 @@ from activetouch.transport.keys import ARM_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
     Empty,
     ExecuteRequest,
+    HandInfo,
     MaskRequest,
     Message,
     MotionStats,
@@ -53,6 +55,7 @@ from activetouch.transport.messages import (
     SimPlaceRequest,
     SimPlaceResult,
     ThresholdsRequest,
+    check_sensor_count,
     encode,
     grasp_to_msg,
     hand_state_to_msg,
@@ -69,7 +72,10 @@ class HandNode(ServedNode):
     """Serve `hand` on ``activetouch/<robot>/hand/...``; publish its state at `state_hz`.
 
     The hand must already be connected, or `link` (activetouch.daemon.supervision) connects it
-    and the node serves commands only while it is connected."""
+    and the node serves commands only while it is connected. ``hand/info`` tells clients the
+    hand's sensor count (`Hand.n_sensors`, 1 .. MAX_SENSORS) and its type (`device`, e.g.
+    ``hand.type``); states and grasps go out with that many sensors, and thresholds of another
+    length or mask ids beyond it are refused with an error reply."""
 
     node_name = HAND_NODE
 
@@ -83,7 +89,12 @@ class HandNode(ServedNode):
         lock: threading.Lock | None = None,
         clock: Clock = SYSTEM_CLOCK,
         link: DeviceLink | None = None,
+        device: str | None = None,
     ) -> None:
+        # Refused here (the daemon does not start), not at every state: a hand the messages
+        # cannot carry.
+        self.n_sensors = check_sensor_count(hand.n_sensors, f"hand {type(hand).__name__}")
+        self.device = device if device is not None else (link.device_type if link else "")
         # A hand that reports each reading as it arrives (the ReFlex drivers: 40 Hz, and once
         # when its stream goes stale) is published from there, beside a running grasp;
         # other hands on the node's timer, between commands.
@@ -107,19 +118,23 @@ class HandNode(ServedNode):
             )
             hand.add_state_listener(self._on_reading)
         k = self.keys
+        n = self.n_sensors
         self._ops = {
+            # At once (no device lock, also while the hand is away): a fixed fact of the hand.
+            "info": Op(
+                k.hand_info,
+                Empty,
+                lambda _r: HandInfo(n_sensors=n, device=self.device),
+                fast=True,
+            ),
             "open": Op(k.hand_open, Empty, lambda _r: hand.open()),
             "preshape": Op(k.hand_preshape, PreshapeRequest, lambda r: hand.preshape(r.angle)),
             "guarded_close": Op(
-                k.hand_guarded_close, Empty, lambda _r: grasp_to_msg(hand.guarded_close())
+                k.hand_guarded_close, Empty, lambda _r: grasp_to_msg(hand.guarded_close(), n)
             ),
-            "state": Op(k.hand_state, Empty, lambda _r: hand_state_to_msg(hand.state())),
-            "mask": Op(k.hand_mask, MaskRequest, lambda r: hand.mask_sensors(r.sensor_ids)),
-            "thresholds": Op(
-                k.hand_thresholds,
-                ThresholdsRequest,
-                lambda r: hand.set_contact_thresholds(r.thresholds),
-            ),
+            "state": Op(k.hand_state, Empty, lambda _r: hand_state_to_msg(hand.state(), n)),
+            "mask": Op(k.hand_mask, MaskRequest, self._mask),
+            "thresholds": Op(k.hand_thresholds, ThresholdsRequest, self._thresholds),
             "sensor_flags": Op(
                 k.hand_sensor_flags,
                 Empty,
@@ -133,8 +148,32 @@ class HandNode(ServedNode):
         }
         self._start()
 
+    def _mask(self, req: MaskRequest) -> bool:
+        n = self.n_sensors
+        bad = sorted({i for i in req.sensor_ids if i >= n})
+        if bad:
+            raise MessageError(
+                f"invalid MaskRequest: field `sensor_ids`: {bad[:8]} are not sensor ids of "
+                f"this hand ({self._what()}: ids 0..{n - 1})",
+                field="sensor_ids",
+            )
+        return self.hand.mask_sensors(req.sensor_ids)
+
+    def _thresholds(self, req: ThresholdsRequest) -> bool:
+        n = self.n_sensors
+        if len(req.thresholds) != n:
+            raise MessageError(
+                f"invalid ThresholdsRequest: field `thresholds`: {len(req.thresholds)} values, "
+                f"expected {n}, one per sensor of this hand ({self._what()})",
+                field="thresholds",
+            )
+        return self.hand.set_contact_thresholds(req.thresholds)
+
+    def _what(self) -> str:
+        return ", ".join(w for w in (self.device, f"{self.n_sensors} sensors") if w)
+
     def _read_state(self) -> Message:
-        return hand_state_to_msg(self.hand.state())
+        return hand_state_to_msg(self.hand.state(), self.n_sensors)
 
     def _on_reading(self, state: HandState) -> None:
         # The driver's receive thread: encode and put (non-blocking, drops under congestion).
@@ -144,7 +183,7 @@ class HandNode(ServedNode):
             return
         self._last_put = now
         try:
-            pub.put(encode(hand_state_to_msg(state)))
+            pub.put(encode(hand_state_to_msg(state, self.n_sensors)))
             self.published += 1
         except Exception as e:
             log.debug("hand node: publishing a reading failed: %s", e)

@@ -6,6 +6,7 @@ not call them from inside a Zenoh callback."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import queue
 import threading
@@ -37,6 +38,7 @@ from activetouch.transport.messages import (
     Empty,
     ExecuteRequest,
     GraspMsg,
+    HandInfo,
     HandStateMsg,
     JointStateMsg,
     MaskRequest,
@@ -71,6 +73,9 @@ GONE = object()  # the node's liveliness token dropped
 
 
 GRACE_S = 0.5  # beyond Zenoh's own timeout, before the client gives up regardless
+
+
+_RAISE = object()  # `_call` without a `missing` value: no answer is an error
 
 
 class RemoteNode:
@@ -166,8 +171,16 @@ class RemoteNode:
             raise NodeUnavailableError(f"cannot query {key}: {e}") from None
 
     def _call(
-        self, op: str, key: str, request: Message, result_type: Any, timeout: float | None = None
+        self,
+        op: str,
+        key: str,
+        request: Message,
+        result_type: Any,
+        timeout: float | None = None,
+        missing: Any = _RAISE,
     ) -> Any:
+        """The result of `request` on `key`. With `missing`: that, when the node is alive but
+        nothing serves `key` (a node from before it was added), instead of an error."""
         timeout = self.timeout if timeout is None else float(timeout)
         if self._alive is False:
             raise self._gone_error(op)
@@ -188,6 +201,8 @@ class RemoteNode:
                 if item is DONE:
                     elapsed = time.monotonic() - start
                     if elapsed < 0.9 * timeout:
+                        if missing is not _RAISE and self._alive:
+                            return missing
                         raise NodeUnavailableError(
                             f"no {self.node} node of robot {self.robot!r} answers on {key} "
                             "(is it running, and are the Zenoh endpoints right?)"
@@ -269,7 +284,10 @@ class RemoteHand(RemoteDevice, Hand):
     """A `Hand` served by a `HandNode` elsewhere.
 
     `timeout` bounds quick calls (state); `motion_timeout` bounds open, preshape and
-    guarded_close. `connect()` waits (up to `timeout`) for the node's liveliness token."""
+    guarded_close. `connect()` waits (up to `timeout`) for the node's liveliness token, then
+    asks the node's `HandInfo` (``hand/info``): `n_sensors` is the hand's sensor count (38
+    from a node from before hand/info), and a state or grasp that does not fit it is refused
+    with a `MessageError`. The info is asked again after the node's token reappears."""
 
     def __init__(
         self,
@@ -279,7 +297,32 @@ class RemoteHand(RemoteDevice, Hand):
         *,
         motion_timeout: float = 30.0,
     ) -> None:
+        self._info: HandInfo | None = None
         super().__init__(session, robot, HAND_NODE, timeout, motion_timeout)
+
+    def _on_liveliness(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._info = None  # a node (re)appearing may serve another hand: ask again
+        super()._on_liveliness(sample)
+
+    def connect(self) -> None:
+        super().connect()
+        # Asked now; a node slow to answer is asked again by the first call that needs it.
+        with contextlib.suppress(NodeUnavailableError):
+            self.info()
+
+    def info(self) -> HandInfo:
+        """The hand node's `HandInfo`: asked once (one query), then kept."""
+        info = self._info
+        if info is None:
+            got = self._call("info", self.keys.hand_info, Empty(), HandInfo, missing=None)
+            info = got if got is not None else HandInfo()  # an older node: 38 sensors
+            self._info = info
+        return info
+
+    @property
+    def n_sensors(self) -> int:
+        return self.info().n_sensors
 
     def open(self) -> None:
         self._call("open", self.keys.hand_open, Empty(), None, self.motion_timeout)
@@ -309,10 +352,11 @@ class RemoteHand(RemoteDevice, Hand):
         msg = self._call(
             "guarded_close", self.keys.hand_guarded_close, Empty(), GraspMsg, self.motion_timeout
         )
-        return grasp_from_msg(msg)
+        return grasp_from_msg(msg, self.n_sensors)
 
     def state(self) -> HandState:
-        return hand_state_from_msg(self._call("state", self.keys.hand_state, Empty(), HandStateMsg))
+        msg = self._call("state", self.keys.hand_state, Empty(), HandStateMsg)
+        return hand_state_from_msg(msg, self.n_sensors)
 
     def stop(self) -> None:
         self._call("stop", self.keys.hand_stop, Empty(), None)

@@ -16,7 +16,8 @@ payload the JSON request made from the ROS one: the same admission checks, limit
 replies (a refusal is a response with ``success: false`` and the error text: rmw_zenoh clients
 drop error replies). Topics: ``~/progress``, ``~/result`` (every recognition's end),
 ``~/contacts`` (each grasp's contacts, sensor_msgs/PointCloud2 in the hand frame),
-``~/tactile`` (the hand state's 38 pressures and contacts), ``joint_states`` (the arm's) and
+``~/tactile`` (the hand state's 38 pressures and contacts; not published for a hand with
+another sensor count, e.g. the BarrettHand's 96), ``joint_states`` (the arm's) and
 ``/tf`` (base -> object: the placement; object -> hand: the wrist at each grasp).
 
 Threads: Zenoh callbacks and the service's observers only enqueue; one worker thread decodes,
@@ -55,6 +56,7 @@ TRIGGER = rz.TRIGGER
 PROGRESS = "activetouch_interfaces/msg/Progress"
 RESULT = "activetouch_interfaces/msg/RecognitionResult"
 TACTILE = "activetouch_interfaces/msg/Tactile"
+TACTILE_SENSORS = 38  # its fixed arrays (the ReFlex's sensors)
 POINT_CLOUD = "sensor_msgs/msg/PointCloud2"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 TF = "tf2_msgs/msg/TFMessage"
@@ -192,6 +194,7 @@ class Ros2Face:
         self._subscribers: list[Any] = []
         self._tokens: list[Any] = []
         self._placements: dict[str, Placement] = {}
+        self._tactile_skipped = False  # warned once: a hand state Tactile cannot carry
         self._closed = False
         for short, (name, type_name) in SERVICES.items():
             self.services[short] = self._endpoint(rz.SERVICE, name, type_name)
@@ -408,6 +411,16 @@ class Ros2Face:
                 self._publish("tf", self._tf_msg(p))
         elif kind == "tactile":
             h = decode(data, HandStateMsg)
+            if len(h.pressures) != TACTILE_SENSORS:
+                if not self._tactile_skipped:
+                    self._tactile_skipped = True
+                    log.warning(
+                        "ROS 2 face: ~/tactile not published: the hand has %d sensors, "
+                        "activetouch_interfaces/msg/Tactile carries %d",
+                        len(h.pressures),
+                        TACTILE_SENSORS,
+                    )
+                return
             self._publish(
                 "tactile",
                 t.new(

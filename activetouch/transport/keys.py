@@ -7,6 +7,7 @@ widen a subscription or a query to other robots.
 | key | kind | payload |
 |---|---|---|
 | hand/state | publication (periodic) and queryable | HandStateMsg / Empty -> Reply[HandStateMsg] |
+| hand/info | queryable (at once: the hand's sensor count and type) | Empty -> Reply[HandInfo] |
 | hand/open | queryable | Empty -> Reply[None] |
 | hand/preshape | queryable | PreshapeRequest -> Reply[None] |
 | hand/mask | queryable (sensors to ignore) | MaskRequest -> Reply[bool] |
@@ -90,6 +91,10 @@ class Keys:
     @property
     def hand_state(self) -> str:
         return self._k("hand", "state")
+
+    @property
+    def hand_info(self) -> str:
+        return self._k("hand", "info")
 
     @property
     def hand_open(self) -> str:

@@ -37,6 +37,7 @@ from activetouch.interfaces import (
 )
 
 __all__ = [
+    "MAX_SENSORS",
     "SCHEMA_VERSION",
     "CancelRequest",
     "CancelResult",
@@ -46,6 +47,7 @@ __all__ = [
     "Empty",
     "ExecuteRequest",
     "GraspMsg",
+    "HandInfo",
     "HandStateMsg",
     "JointStateMsg",
     "JointTrajectoryMsg",
@@ -80,7 +82,12 @@ T = TypeVar("T")
 # Constrained scalar / array types (msgspec checks them while decoding).
 Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
-SensorId = Annotated[int, msgspec.Meta(ge=0, lt=N_SENSORS)]
+# Tactile sensors on the wire: any hand with 1 .. MAX_SENSORS of them (the ReFlex's 38,
+# N_SENSORS, the count wherever none is given; the BarrettHand's 96 cells). The hand node says
+# its hand's count (`HandInfo`, ``hand/info``) and each side checks a message against it.
+MAX_SENSORS = 96
+SensorId = Annotated[int, msgspec.Meta(ge=0, lt=MAX_SENSORS)]
+SensorCount = Annotated[int, msgspec.Meta(ge=1, le=MAX_SENSORS)]
 NonNegInt = Annotated[int, msgspec.Meta(ge=0)]
 PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
 NonNegFloat = Annotated[float, msgspec.Meta(ge=0.0)]
@@ -93,8 +100,8 @@ _MAX_ERROR = 4000
 ErrorText = Annotated[str, msgspec.Meta(max_length=_MAX_ERROR)]
 PathText = Annotated[str, msgspec.Meta(max_length=4096)]
 Label = Annotated[str, msgspec.Meta(max_length=200)]
-Pressures38 = Annotated[list[float], msgspec.Meta(min_length=N_SENSORS, max_length=N_SENSORS)]
-Contacts38 = Annotated[list[bool], msgspec.Meta(min_length=N_SENSORS, max_length=N_SENSORS)]
+Pressures = Annotated[list[float], msgspec.Meta(min_length=1, max_length=MAX_SENSORS)]
+Contacts = Annotated[list[bool], msgspec.Meta(min_length=1, max_length=MAX_SENSORS)]
 FingerAngles = Annotated[list[float], msgspec.Meta(min_length=N_FINGERS, max_length=N_FINGERS)]
 Policy = Literal["tree", "greedy", "random"]
 
@@ -143,7 +150,7 @@ class PoseMsg(Message, kw_only=True):
 class GraspMsg(Message, kw_only=True):
     """One guarded grasp: the sensors in contact, their hand-frame XYZ and pressures."""
 
-    sensor_ids: list[SensorId]
+    sensor_ids: Annotated[list[SensorId], msgspec.Meta(max_length=MAX_SENSORS)]
     xyz: list[Vec3]
     pressures: list[float]
     finger_angles: FingerAngles
@@ -162,10 +169,11 @@ class GraspMsg(Message, kw_only=True):
 
 
 class HandStateMsg(Message, kw_only=True):
-    """A snapshot of all 38 sensors, the proximal finger angles and the preshape."""
+    """A snapshot of all the hand's sensors (its `HandInfo.n_sensors`: 38 for a ReFlex, 96
+    for a BarrettHand), the proximal finger angles and the preshape."""
 
-    pressures: Pressures38
-    contact: Contacts38
+    pressures: Pressures
+    contact: Contacts
     finger_angles: FingerAngles
     preshape: float
     stamp: float  # seconds, monotonic clock of the producer
@@ -175,6 +183,24 @@ class HandStateMsg(Message, kw_only=True):
     # this reading is the last one there was).
     wall_stamp: float = 0.0
     stale: bool = False
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if len(self.contact) != len(self.pressures):
+            raise ValueError(
+                f"`pressures` ({len(self.pressures)}) and `contact` ({len(self.contact)}) "
+                "differ in length"
+            )
+
+
+class HandInfo(Message, kw_only=True):
+    """What the hand node says of its hand (``hand/info``): its tactile sensor count, which
+    every state, grasp, threshold list and mask of it is checked against, and its type
+    (``hand.type``; "" if the node was not told). A node from before ``hand/info`` serves a
+    hand with N_SENSORS (38) sensors."""
+
+    n_sensors: SensorCount = N_SENSORS
+    device: Label = ""
 
 
 class JointStateMsg(Message, kw_only=True):
@@ -237,18 +263,18 @@ class PreshapeRequest(Message, kw_only=True):
 
 
 class MaskRequest(Message, kw_only=True):
-    """The sensors the hand ignores from now on (replacing an earlier mask; [] none)."""
+    """The sensors the hand ignores from now on (replacing an earlier mask; [] none); ids
+    below the hand's `HandInfo.n_sensors` (the node refuses others)."""
 
     sensor_ids: list[SensorId] = []
 
 
 class ThresholdsRequest(Message, kw_only=True):
-    """Per-sensor contact thresholds measured at rest (38, sensor units): the hand counts a
-    contact only above its own and its configured threshold, until set again."""
+    """Per-sensor contact thresholds measured at rest (sensor units), one per sensor of the
+    hand (`HandInfo.n_sensors`; the node refuses another count): the hand counts a contact
+    only above its own and its configured threshold, until set again."""
 
-    thresholds: Annotated[
-        list[NonNegFloat], msgspec.Meta(min_length=N_SENSORS, max_length=N_SENSORS)
-    ]
+    thresholds: Annotated[list[NonNegFloat], msgspec.Meta(min_length=1, max_length=MAX_SENSORS)]
 
 
 class SensorFlagsMsg(Message, kw_only=True):
@@ -348,7 +374,7 @@ class Progress(Message, kw_only=True):
     # For a live view (`activetouch view`); added later: optional, left out of the JSON while
     # empty, so a daemon that has none of them still speaks to clients from before them.
     # This grasp's contacts in the object frame (table contacts dropped), metres.
-    contacts: Annotated[list[Vec3], msgspec.Meta(max_length=N_SENSORS)] = []
+    contacts: Annotated[list[Vec3], msgspec.Meta(max_length=MAX_SENSORS)] = []
     # p(y|h) of every class after this grasp, in the model's class order (empty before the
     # first grasp that felt anything).
     belief: Annotated[list[LabelProb], msgspec.Meta(max_length=MAX_CLASSES)] = []
@@ -675,10 +701,40 @@ def pose_from_msg(msg: PoseMsg) -> Pose:
     return Pose(np.array(msg.xyz, dtype=np.float64), np.array(msg.quat, dtype=np.float64))
 
 
-def grasp_to_msg(grasp: Grasp) -> GraspMsg:
+def check_sensor_count(n_sensors: int, what: str = "the hand") -> int:
+    """`n_sensors` if the hand messages can carry it (1 .. MAX_SENSORS), else MessageError."""
+    n = int(n_sensors)
+    if not 1 <= n <= MAX_SENSORS:
+        raise MessageError(
+            f"{what} has {n} tactile sensors: the hand messages carry 1..{MAX_SENSORS}"
+        )
+    return n
+
+
+def _check_ids(ids: list[int], n_sensors: int | None, field: str, who: str) -> list[int]:
+    """`ids` if every one is a sensor id of a hand with `n_sensors` (MAX_SENSORS: None)."""
+    n = MAX_SENSORS if n_sensors is None else int(n_sensors)
+    bad = [i for i in ids if not 0 <= i < n]
+    if bad:
+        raise MessageError(
+            f"`{field}` has {bad[:8]}{' ...' if len(bad) > 8 else ''}: not a sensor id of "
+            f"{who} (0..{n - 1})",
+            field=field,
+        )
+    return ids
+
+
+def _who(n_sensors: int | None) -> str:
+    return "any hand" if n_sensors is None else f"a hand with {n_sensors} sensors"
+
+
+def grasp_to_msg(grasp: Grasp, n_sensors: int | None = None) -> GraspMsg:
+    """The wire message of `grasp`; its sensor ids checked against the hand's `n_sensors`
+    (None: against MAX_SENSORS)."""
+    ids = _check_ids([int(i) for i in grasp.sensor_ids], n_sensors, "sensor_ids", _who(n_sensors))
     try:
         return GraspMsg(
-            sensor_ids=[int(i) for i in grasp.sensor_ids],
+            sensor_ids=ids,
             xyz=[tuple(p) for p in _floats(grasp.xyz, "xyz")],
             pressures=_floats(grasp.pressures, "pressures"),
             finger_angles=_floats(grasp.finger_angles, "finger_angles"),
@@ -688,13 +744,22 @@ def grasp_to_msg(grasp: Grasp) -> GraspMsg:
         raise MessageError(f"invalid Grasp: {e}") from None
 
 
-def _check_len(values: list, n: int, field: str) -> list:
+def _check_len(values: list, n: int, field: str, why: str = "") -> list:
     if len(values) != n:
-        raise MessageError(f"`{field}` has {len(values)} values, expected {n}", field=field)
+        raise MessageError(f"`{field}` has {len(values)} values, expected {n}{why}", field=field)
     return values
 
 
-def grasp_from_msg(msg: GraspMsg) -> Grasp:
+def grasp_from_msg(msg: GraspMsg, n_sensors: int | None = None) -> Grasp:
+    """The `Grasp` of `msg`; with `n_sensors` (the count its hand node reported), a sensor id
+    that hand does not have is a MessageError."""
+    if n_sensors is not None:
+        _check_ids(
+            list(msg.sensor_ids),
+            n_sensors,
+            "sensor_ids",
+            f"the hand, whose node reported {n_sensors} sensors",
+        )
     return Grasp(
         sensor_ids=np.array(msg.sensor_ids, dtype=np.int64),
         xyz=np.array(msg.xyz, dtype=np.float64).reshape(-1, 3),
@@ -704,11 +769,17 @@ def grasp_from_msg(msg: GraspMsg) -> Grasp:
     )
 
 
-def hand_state_to_msg(state: HandState) -> HandStateMsg:
+def hand_state_to_msg(state: HandState, n_sensors: int | None = None) -> HandStateMsg:
+    """The wire message of `state`, whose pressures and contacts have `n_sensors` values each
+    (the hand's; None: as many as the pressures, 1 .. MAX_SENSORS)."""
+    pressures = _floats(state.pressures, "pressures")
+    pressures = pressures if isinstance(pressures, list) else [pressures]
+    n = check_sensor_count(len(pressures), "the hand state") if n_sensors is None else n_sensors
+    why = f" (the hand's {n} sensors)"
     return HandStateMsg(
-        pressures=_check_len(_floats(state.pressures, "pressures"), N_SENSORS, "pressures"),
+        pressures=_check_len(pressures, n, "pressures", why),
         contact=_check_len(
-            [bool(c) for c in np.asarray(state.contact).reshape(-1)], N_SENSORS, "contact"
+            [bool(c) for c in np.asarray(state.contact).reshape(-1)], n, "contact", why
         ),
         finger_angles=_check_len(
             _floats(state.finger_angles, "finger_angles"), N_FINGERS, "finger_angles"
@@ -730,7 +801,13 @@ def _wall_stamp(state: HandState) -> float:
     return time.time() - (time.monotonic() - float(state.stamp))
 
 
-def hand_state_from_msg(msg: HandStateMsg) -> HandState:
+def hand_state_from_msg(msg: HandStateMsg, n_sensors: int | None = None) -> HandState:
+    """The `HandState` of `msg`; with `n_sensors` (the count its hand node reported), other
+    lengths are a MessageError."""
+    if n_sensors is not None:
+        why = f" (the hand node reported {n_sensors} sensors)"
+        _check_len(msg.pressures, n_sensors, "pressures", why)
+        _check_len(msg.contact, n_sensors, "contact", why)
     return HandState(
         pressures=np.array(msg.pressures, dtype=np.float64),
         contact=np.array(msg.contact, dtype=bool),

@@ -268,3 +268,36 @@ def test_legacy_setting_labels_the_publications(start_fake_daemon) -> None:
         _payload, attachment = joints.get(timeout=30.0)
     assert attachment is not None and attachment.startswith(b"\x0fsequence_number")
     assert b"\x10source_timestamp" in attachment and b"\x0asource_gid\x10" in attachment
+
+
+def test_a_hand_with_another_sensor_count_is_not_published_as_tactile(caplog, monkeypatch) -> None:
+    """Tactile has the ReFlex's 38 fixed sensors: a BarrettHand's 96-cell state is skipped
+    with one warning (not a failure per sample), a 38-sensor state still goes out."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from activetouch.daemon import ros2_face
+    from activetouch.interfaces import HandState
+    from activetouch.transport.messages import encode, hand_state_to_msg
+
+    monkeypatch.setattr(ros2_face, "_header", lambda *_a: None)
+    sent: list = []
+    face = SimpleNamespace(  # what _on_sample uses of a face
+        types=SimpleNamespace(new=lambda _type, **fields: fields),
+        rcfg=SimpleNamespace(hand_frame="hand"),
+        _tactile_skipped=False,
+        _publish=lambda topic, msg: sent.append((topic, msg)),
+    )
+
+    def sample(n: int) -> None:
+        state = HandState(np.zeros(n), np.zeros(n, dtype=bool), np.zeros(3), 0.0, 1.0)
+        ros2_face.Ros2Face._on_sample(face, "tactile", encode(hand_state_to_msg(state)))  # type: ignore[arg-type]
+
+    for _ in range(3):
+        sample(96)
+    assert sent == []
+    assert sum("has 96 sensors" in r.getMessage() for r in caplog.records) == 1
+    sample(38)
+    [(topic, msg)] = sent
+    assert topic == "tactile" and len(msg["pressures"]) == 38

@@ -194,11 +194,11 @@ def test_reply_failure_carries_the_error_type() -> None:
             "schema version 7",
         ),
         (
-            b'{"v":1,"sensor_ids":[1,40],"xyz":[[0,0,0],[0,0,0]],"pressures":[1,2],'
+            b'{"v":1,"sensor_ids":[1,96],"xyz":[[0,0,0],[0,0,0]],"pressures":[1,2],'
             b'"finger_angles":[0,0,0]}',
             m.GraspMsg,
             "sensor_ids[1]",
-            "<= 37",
+            "<= 95",
         ),
         (
             b'{"v":1,"sensor_ids":[1,2],"xyz":[[0,0,0]],"pressures":[1,2],"finger_angles":[0,0,0]}',
@@ -213,11 +213,29 @@ def test_reply_failure_carries_the_error_type() -> None:
             "length >= 3",
         ),
         (
-            b'{"v":1,"pressures":[0],"contact":[],"finger_angles":[0,0,0],"preshape":0,"stamp":0}',
+            b'{"v":1,"pressures":[],"contact":[],"finger_angles":[0,0,0],"preshape":0,"stamp":0}',
             m.HandStateMsg,
             "pressures",
-            "length >= 38",
+            "length >= 1",
         ),
+        (
+            b'{"v":1,"pressures":[0],"contact":[true,false],"finger_angles":[0,0,0],'
+            b'"preshape":0,"stamp":0}',
+            m.HandStateMsg,
+            None,
+            "differ in length",
+        ),
+        (
+            b'{"v":1,"pressures":[' + b",".join([b"0"] * 97) + b'],"contact":[true],'
+            b'"finger_angles":[0,0,0],"preshape":0,"stamp":0}',
+            m.HandStateMsg,
+            "pressures",
+            "length <= 96",
+        ),
+        (b'{"v":1,"thresholds":[]}', m.ThresholdsRequest, "thresholds", "length >= 1"),
+        (b'{"v":1,"sensor_ids":[3,96]}', m.MaskRequest, "sensor_ids[1]", "<= 95"),
+        (b'{"v":1,"n_sensors":97}', m.HandInfo, "n_sensors", "<= 96"),
+        (b'{"v":1,"n_sensors":0}', m.HandInfo, "n_sensors", ">= 1"),
         (
             b'{"v":1,"trajectory":{"names":["a"],"times":[0,1],"positions":[[0],[1,2]]}}',
             m.ExecuteRequest,
@@ -264,8 +282,12 @@ def test_not_a_json_object(payload: bytes) -> None:
 def test_conversions_reject_non_finite_values() -> None:
     with pytest.raises(MessageError, match="`pressures` contains NaN"):
         m.grasp_to_msg(Grasp(np.array([1]), np.zeros((1, 3)), np.array([np.nan]), np.zeros(3)))
-    with pytest.raises(MessageError, match="`pressures` has 37 values"):
-        m.hand_state_to_msg(HandState(np.zeros(37), np.zeros(37, bool), np.zeros(3), 0.0, 0.0))
+    with pytest.raises(MessageError, match="`pressures` has 37 values, expected 38"):
+        m.hand_state_to_msg(HandState(np.zeros(37), np.zeros(37, bool), np.zeros(3), 0.0, 0.0), 38)
+    with pytest.raises(MessageError, match="`contact` has 37 values, expected 38"):
+        m.hand_state_to_msg(HandState(np.zeros(38), np.zeros(37, bool), np.zeros(3), 0.0, 0.0))
+    with pytest.raises(MessageError, match=r"97 tactile sensors: the hand messages carry 1\.\.96"):
+        m.hand_state_to_msg(HandState(np.zeros(97), np.zeros(97, bool), np.zeros(3), 0.0, 0.0))
     with pytest.raises(MessageError, match="cannot encode"):
         m.encode(
             m.JointTrajectoryMsg(names=["a"], times=[0.0], positions=[[0.0]], meta={"x": object()})
@@ -281,6 +303,48 @@ def test_every_message_is_versioned_and_strict() -> None:
             assert issubclass(obj, m.Message), name
             assert obj.__struct_config__.forbid_unknown_fields, name
             assert "v" in obj.__struct_fields__, name
+
+
+def test_hands_with_up_to_96_sensors_cross_the_wire() -> None:
+    """A BarrettHand's 96 cells: states, grasps, thresholds and masks of any count 1..96; a
+    receiver that knows its hand's count refuses another with the field and both counts."""
+    n = m.MAX_SENSORS
+    contact = np.zeros(n, bool)
+    contact[[24, 50, 95]] = True
+    hs = HandState(np.linspace(0, 1, n), contact, np.array([0.1, 0.2, 0.3]), 0.4, 12.5)
+    msg = m.decode(m.encode(m.hand_state_to_msg(hs, n)), m.HandStateMsg)
+    back = m.hand_state_from_msg(msg, n)
+    np.testing.assert_array_equal(back.contact, contact)
+    with pytest.raises(MessageError, match=r"`pressures` has 96 values, expected 38 \(the hand "):
+        m.hand_state_from_msg(msg, 38)
+    with pytest.raises(MessageError, match="`pressures` has 96 values, expected 38"):
+        m.hand_state_to_msg(hs, 38)
+    # A ReFlex state of an older producer still decodes, for a 38-sensor hand.
+    old = m.decode(
+        m.encode(
+            m.hand_state_to_msg(HandState(np.zeros(38), np.zeros(38, bool), np.zeros(3), 0.0, 1.0))
+        ),
+        m.HandStateMsg,
+    )
+    assert m.hand_state_from_msg(old, N_SENSORS).pressures.shape == (38,)
+
+    ids = np.array([3, 30, 47, 95])
+    g = Grasp(ids, np.zeros((4, 3)), np.ones(4), np.zeros(3), 0.5)
+    gm = m.decode(m.encode(m.grasp_to_msg(g, n)), m.GraspMsg)
+    assert m.grasp_from_msg(gm, n).sensor_ids.tolist() == ids.tolist()
+    with pytest.raises(MessageError, match=r"`sensor_ids` has \[47, 95\]: not a sensor id"):
+        m.grasp_from_msg(gm, 38)
+    with pytest.raises(MessageError, match=r"\[47, 95\]: not a sensor id of a hand with 38"):
+        m.grasp_to_msg(g, 38)
+
+    thr = m.decode(m.encode(m.ThresholdsRequest(thresholds=[1.0] * n)), m.ThresholdsRequest)
+    assert len(thr.thresholds) == n
+    assert m.decode(b'{"v":1,"sensor_ids":[0,95]}', m.MaskRequest).sensor_ids == [0, 95]
+    # HandInfo: a node that says nothing more serves a ReFlex's 38.
+    assert m.decode(b'{"v":1}', m.HandInfo) == m.HandInfo(n_sensors=38, device="")
+    info = m.HandInfo(n_sensors=96, device="barrett-bh8")
+    assert m.decode(m.encode(info), m.HandInfo) == info
+    assert Keys("b").hand_info == "activetouch/b/hand/info"
 
 
 def test_keys() -> None:

@@ -28,6 +28,7 @@ from activetouch.interfaces import (
 from activetouch.transport.keys import Keys
 from activetouch.transport.messages import (
     Empty,
+    HandInfo,
     HandStateMsg,
     JointStateMsg,
     MotionStats,
@@ -36,6 +37,7 @@ from activetouch.transport.messages import (
     Reply,
     decode,
     encode,
+    hand_state_to_msg,
     pose_to_msg,
 )
 from activetouch.transport.zenoh_session import (
@@ -541,3 +543,116 @@ def test_noise_thresholds_and_sensor_flags_cross_the_wire(
     assert remote_hand.sensor_flags() == {4: "dead", 30: "noisy"}
     with pytest.raises(Exception, match="thresholds"):  # 38 values or an error reply
         remote_hand.set_contact_thresholds([1.0] * 5)
+
+
+class WideHand(RecordingHand):
+    """A hand with a BarrettHand's 96 sensors: records the masks and thresholds it is given;
+    its grasp touches 5, 30 and 90."""
+
+    IDS = (5, 30, 90)
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.masks: list[list[int]] = []
+        self.thresholds: list[list[float]] = []
+
+    @property
+    def n_sensors(self) -> int:
+        return 96
+
+    def state(self) -> HandState:
+        contact = np.zeros(96, dtype=bool)
+        contact[list(self.IDS)] = self.closed
+        return HandState(
+            np.arange(96.0) * contact, contact, np.zeros(3), self.angle, time.monotonic()
+        )
+
+    def guarded_close(self):
+        g = super().guarded_close()
+        ids = np.array(self.IDS)
+        return type(g)(ids, np.zeros((3, 3)), ids * 1.0, g.finger_angles, g.preshape)
+
+    def mask_sensors(self, sensor_ids) -> bool:
+        self.masks.append([int(i) for i in sensor_ids])
+        return True
+
+    def set_contact_thresholds(self, thresholds) -> bool:
+        self.thresholds.append([float(t) for t in thresholds])
+        return True
+
+
+def test_a_96_sensor_hand_is_served_with_its_sensor_count(
+    node_session: ZenohSession, client_session: ZenohSession
+) -> None:
+    """``hand/info`` gives the hand's count; states, grasps, thresholds and masks of 96
+    sensors cross; another count is refused with an error reply and the node serves on."""
+    hand = WideHand()
+    node_session.closing(
+        HandNode(hand, node_session.session, ROBOT, state_hz=50.0, device="wide-hand")
+    )
+    published = client_session.closing(
+        Latest(client_session.session, Keys(ROBOT).hand_state, HandStateMsg)
+    )
+    rh = client_session.closing(RemoteHand(client_session.session, ROBOT, timeout=5.0))
+    rh.connect()
+    assert rh.info() == HandInfo(n_sensors=96, device="wide-hand") and rh.n_sensors == 96
+    assert rh.state().pressures.shape == (96,)
+    assert rh.guarded_close().sensor_ids.tolist() == [5, 30, 90]
+    st = rh.state()
+    assert st.contact.shape == (96,) and np.flatnonzero(st.contact).tolist() == [5, 30, 90]
+    thr = [10.0 + i for i in range(96)]
+    assert rh.set_contact_thresholds(thr) is True and hand.thresholds == [thr]
+    assert rh.mask_sensors([40, 95]) is True and hand.masks == [[40, 95]]
+    with pytest.raises(
+        MessageError,
+        match=r"`thresholds`: 38 values, expected 96, one per sensor of this hand "
+        r"\(wide-hand, 96 sensors\)",
+    ):
+        rh.set_contact_thresholds([1.0] * 38)
+    with pytest.raises(MessageError, match=r"sensor_ids\[0\]`: Expected `int` <= 95"):
+        rh.mask_sensors([96])
+    assert hand.thresholds == [thr] and hand.masks == [[40, 95]]  # refused before the hand
+    assert rh.state().pressures.shape == (96,)  # still serving
+    assert len(published.wait(timeout=10.0).pressures) == 96 and published.invalid == 0
+
+
+def test_a_38_sensor_hand_refuses_ids_and_thresholds_beyond_its_sensors(
+    remote_hand: RemoteHand, hand: RecordingHand
+) -> None:
+    assert remote_hand.n_sensors == N_SENSORS and remote_hand.info().device == ""
+    with pytest.raises(MessageError, match=r"\[40, 95\] are not sensor ids of this hand "):
+        remote_hand.mask_sensors([3, 40, 95])
+    with pytest.raises(MessageError, match="96 values, expected 38"):
+        remote_hand.set_contact_thresholds([1.0] * 96)
+    assert remote_hand.mask_sensors([3, 37]) is False  # RecordingHand cannot mask: False
+
+
+def test_a_node_without_hand_info_serves_38_sensors(
+    node_session: ZenohSession, client_session: ZenohSession
+) -> None:
+    """A hand node from before ``hand/info``: the client takes 38 sensors (asking costs one
+    query, answered by nobody at once), and a state of 96 is refused as not that hand's."""
+    keys = Keys("older")
+    state = HandState(np.zeros(96), np.zeros(96, dtype=bool), np.zeros(3), 0.0, 1.0)
+
+    def answer(query) -> None:
+        query.reply(keys.hand_state, encode(Reply.success(hand_state_to_msg(state))))
+
+    s = node_session.session
+    node_session.closing(s.declare_queryable(keys.hand_state, answer))
+    node_session.closing(s.liveliness().declare_token(keys.alive("hand")))
+    rh = client_session.closing(RemoteHand(client_session.session, "older", timeout=5.0))
+    rh.connect()
+    assert rh.n_sensors == 38 and rh.info() == HandInfo()
+    with pytest.raises(
+        MessageError, match=r"`pressures` has 96 values, expected 38 \(the hand node reported 38"
+    ):
+        rh.state()
+
+
+def test_a_hand_the_messages_cannot_carry_is_refused_at_once(node_session) -> None:
+    class Huge(RecordingHand):
+        n_sensors = 120
+
+    with pytest.raises(MessageError, match=r"120 tactile sensors: the hand messages carry 1\.\.96"):
+        HandNode(Huge(), node_session.session, ROBOT, state_hz=0.0)
