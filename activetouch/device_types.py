@@ -34,7 +34,7 @@ HAND_TYPES: dict[str, str] = {
     "fake": "activetouch.fakes.replay:FakeHandConfig",
     "reflex-takktile": "activetouch.rigs.reflex_emulated:ReflexTakktileRigConfig",
     "reflex-sf": "activetouch.drivers.reflex.sf:ReflexSFConfig",
-    "barrett-bh8": "activetouch.drivers.barrett.bh8:BarrettBH8Config",
+    "barrett-bh8": "activetouch.rigs.bh8_emulated:BarrettBH8RigConfig",
 }
 ARM_TYPES: dict[str, str] = {
     "twin-floating": "activetouch.sim.devices:TwinFloatingArmConfig",

@@ -13,10 +13,11 @@ What the pucks do here:
   and SET TACT = 2 with five full-format frames to group 9; SET TACT = 3 tares the pad;
 - MODE 0 idles (the worm-geared fingers hold where they are), 3 holds, 4 runs at V counts/ms,
   5 moves to E; CMD 18 / 20 close / open, CMD 19 moves to E;
-- a finger is a `FingerObject`: its inner link meets the object at `contact_angle`; the
-  TorqueSwitch then breaks away and the motor keeps closing only the outer link, whose pad meets
-  the object `tip_gap` rad later, presses (cells rise, the strain gauge rises) and stalls the
-  motor `press_limit` rad further on.
+- what the fingers meet is a `BH8FingerModel`: by default a `FingerObject` (each inner link
+  meets the object at `contact_angle`; the TorqueSwitch then breaks away and the motor keeps
+  closing only the outer link, whose pad meets the object `tip_gap` rad later, presses (cells
+  rise, the strain gauge rises) and stalls the motor `press_limit` rad further on); or the
+  twin's hand in contact with a placed object (`rigs/bh8_twin_fingers.py`).
 
 Faults on demand (`Faults`): lost frames (a fraction of everything the pucks send), silent
 pucks, stuck tactile cells (full scale), bus-off (nothing sent or taken).
@@ -32,7 +33,7 @@ import signal
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 from activetouch.emulators.threaded import ThreadedEmulator
 
@@ -69,6 +70,29 @@ MAX_SPREAD = 36000
 INNER_RATIO, OUTER_RATIO, SECONDARY_RATIO, SPREAD_RATIO = 125.0, 375.0, 50.0, 17.5
 
 
+class BH8FingerModel(Protocol):
+    """What the fingers meet. The emulator tells it the motors after every tick (`update`,
+    motor radians from each finger's open stop, and the spread), then asks."""
+
+    def update(self, motors: list[float], spread: float) -> None: ...
+
+    def joints(self, finger: int, motor: float) -> tuple[float, float, float]:
+        """(inner, outer, press) of finger 0-2 at this motor angle."""
+        ...
+
+    def stall_motor(self, finger: int) -> float:
+        """The motor angle the finger cannot close past now (inf: none)."""
+        ...
+
+    def cells(self, pad: int) -> list[float]:
+        """24 cell loads of pad 0-3 (F1-F3, palm) above the baseline, cell units."""
+        ...
+
+    def strain(self, finger: int) -> float:
+        """SG units above the baseline."""
+        ...
+
+
 @dataclass
 class FingerObject:
     """Where the object is for each finger (index 0 = F1 ... 2 = F3)."""
@@ -80,6 +104,41 @@ class FingerObject:
     pressure_gain: float = 60.0  # cell value (raw / 256) per rad of press
     strain_gain: float = 4000.0  # SG units per rad of press
     palm: dict[int, float] = field(default_factory=dict)  # palm cells under a constant load
+    motors: list[float] = field(default_factory=lambda: [0.0] * 3)
+
+    def update(self, motors: list[float], spread: float) -> None:
+        self.motors = list(motors)
+
+    def joints(self, finger: int, motor: float) -> tuple[float, float, float]:
+        free_inner = motor / INNER_RATIO
+        c = self.contact_angle[finger]
+        if free_inner <= c:
+            return free_inner, motor / OUTER_RATIO, 0.0
+        outer = motor * (1 / INNER_RATIO + 1 / OUTER_RATIO) - c
+        touch = c * INNER_RATIO / OUTER_RATIO + self.tip_gap[finger]
+        return c, outer, max(0.0, outer - touch)
+
+    def stall_motor(self, finger: int) -> float:
+        c = self.contact_angle[finger]
+        if not math.isfinite(c):
+            return math.inf
+        touch = c * INNER_RATIO / OUTER_RATIO + self.tip_gap[finger]
+        return (touch + self.press_limit + c) / (1 / INNER_RATIO + 1 / OUTER_RATIO)
+
+    def cells(self, pad: int) -> list[float]:
+        vals = [0.0] * 24
+        if pad == 3:
+            for c, v in self.palm.items():
+                vals[c] += v
+            return vals
+        press = self.joints(pad, self.motors[pad])[2]
+        if press > 0:
+            for c in self.pad_cells[pad]:
+                vals[c] += self.pressure_gain * press
+        return vals
+
+    def strain(self, finger: int) -> float:
+        return self.strain_gain * self.joints(finger, self.motors[finger])[2]
 
 
 @dataclass
@@ -135,10 +194,12 @@ class _Puck:
 class BH8Emulator(ThreadedEmulator):
     """The four hand pucks on one python-can bus. Use as a context manager or start()/stop()."""
 
-    def __init__(self, cfg: BH8EmulatorConfig | None = None) -> None:
+    def __init__(
+        self, cfg: BH8EmulatorConfig | None = None, fingers: BH8FingerModel | None = None
+    ) -> None:
         self.cfg = cfg or BH8EmulatorConfig()
         self.faults = self.cfg.faults
-        self.obj = self.cfg.obj
+        self.fingers: BH8FingerModel = fingers if fingers is not None else self.cfg.obj
         self.cpr = self.cfg.cts / (2 * math.pi)
         self.props = dict(PROPS if self.cfg.property_ids is None else self.cfg.property_ids)
         self.pucks = {
@@ -215,26 +276,16 @@ class BH8Emulator(ThreadedEmulator):
 
     def _joints(self, p: _Puck) -> tuple[float, float, float]:
         """(inner, outer, press) of a finger puck at its motor counts."""
-        f = NODES.index(p.node)
-        m = p.actual / self.cpr
-        free_inner = m / INNER_RATIO
-        c = self.obj.contact_angle[f]
-        if free_inner <= c:
-            return free_inner, m / OUTER_RATIO, 0.0
-        outer = m * (1 / INNER_RATIO + 1 / OUTER_RATIO) - c
-        touch = c * INNER_RATIO / OUTER_RATIO + self.obj.tip_gap[f]
-        return c, outer, max(0.0, outer - touch)
+        return self.fingers.joints(NODES.index(p.node), p.actual / self.cpr)
 
     def _stall_counts(self, p: _Puck) -> float:
         if p.node == SPREAD_NODE:
             return MAX_SPREAD
-        f = NODES.index(p.node)
-        c = self.obj.contact_angle[f]
-        if not math.isfinite(c):
-            return MAX_FINGER
-        touch = c * INNER_RATIO / OUTER_RATIO + self.obj.tip_gap[f]
-        m = (touch + self.obj.press_limit + c) / (1 / INNER_RATIO + 1 / OUTER_RATIO)
-        return min(MAX_FINGER, m * self.cpr)
+        return min(float(MAX_FINGER), self.fingers.stall_motor(NODES.index(p.node)) * self.cpr)
+
+    def _update_fingers(self) -> None:
+        motors = [self.pucks[n].actual / self.cpr for n in NODES[:3]]
+        self.fingers.update(motors, self.pucks[SPREAD_NODE].actual / self.cpr / SPREAD_RATIO)
 
     def _advance(self, dt_ms: float) -> None:
         for p in self.pucks.values():
@@ -280,6 +331,7 @@ class BH8Emulator(ThreadedEmulator):
             now = time.monotonic()
             with self._lock:
                 self._advance((now - self._last) * 1000.0)
+                self._update_fingers()
                 self._last = now
                 if msg is not None and not self.faults.bus_off:
                     self.counts["received"] += 1
@@ -358,8 +410,8 @@ class BH8Emulator(ThreadedEmulator):
         if name == "TACTID":
             return 1
         if name == "SG":
-            press = 0.0 if p.node == SPREAD_NODE else self._joints(p)[2]
-            return int(self.cfg.sg_baseline[f] + self.obj.strain_gain * press)
+            load = 0.0 if p.node == SPREAD_NODE else self.fingers.strain(f)
+            return int(self.cfg.sg_baseline[f] + load)
         if name == "P":
             return round(p.actual - p.zero)
         if name == "E":
@@ -397,16 +449,8 @@ class BH8Emulator(ThreadedEmulator):
         self._send(p.node, GROUP_POSITION, data)
 
     def _cells(self, p: _Puck) -> list[float]:
-        vals = [self.cfg.tact_baseline] * 24
-        if p.node == SPREAD_NODE:
-            for c, v in self.obj.palm.items():
-                vals[c] += v
-        else:
-            f = NODES.index(p.node)
-            press = self._joints(p)[2]
-            if press > 0:
-                for c in self.obj.pad_cells[f]:
-                    vals[c] += self.obj.pressure_gain * press
+        loads = self.fingers.cells(NODES.index(p.node))
+        vals = [self.cfg.tact_baseline + v for v in loads]
         if self.cfg.tact_noise:
             vals = [v + self._rng.gauss(0.0, self.cfg.tact_noise) for v in vals]
         return vals

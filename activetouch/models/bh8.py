@@ -118,6 +118,12 @@ def inner_link_frame(finger: int, spread: float, inner: float) -> np.ndarray:
     return t @ _dh(A1, math.pi / 2, 0.0, inner + PHI2)
 
 
+# `[grid]` values for the BH8's size (the ReFlex's are the defaults): the palm face Dw above
+# the wrist, the fingers already centred on the approach axis (F1/F2 and F3 knuckles at -+50
+# mm), a closer palm (the 120 mm fingers lie flat when open and reach 70 mm over the palm when
+# the inner link stands).
+GRID_DEFAULTS = {"palm_offset_m": DW, "center_offset_m": 0.0, "margin_m": 0.05}
+
 # -- ranges and transmission -------------------------------------------------------------------
 
 SPREAD_LIMIT = math.pi

@@ -291,6 +291,19 @@ class SimBH8Hand(Hand):
 
     # -- sensing --------------------------------------------------------------------------
 
+    def sense(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """At the hand's current pose: (96,) cell readings (noise from the state stream),
+        (3, 2) the deepest penetration of each finger's inner and outer links, and (3,) the
+        load on each outer link, newtons (what its strain gauge feels: stiffness x its
+        deepest penetration, so a fingertip pushed `strain_depth_m` deep reads the load the
+        twin's close stops on)."""
+        w = self.world
+        w.flush_contacts()
+        contacts = w.hand_contacts()
+        pressures, depth = self._sense(contacts, self._state_rng)
+        load = self.hcfg.contact_stiffness_n_per_m * depth[:, 1]
+        return pressures, depth, load
+
     def _sense(
         self, contacts: HandContacts, rng: np.random.Generator
     ) -> tuple[np.ndarray, np.ndarray]:

@@ -112,11 +112,9 @@ class TwinBH8HandConfig(HandConfig):
         return PacedHand(rig.hand, ctx.cfg.service.sim_motion_delay_s)
 
     def default_grid(self) -> dict[str, Any] | None:
-        """`[grid]` values for the BH8's size where the configuration left them at the
-        ReFlex's: the palm face Dw above the wrist, the fingers already centred on the
-        approach axis (F1/F2 and F3 knuckles at -+50 mm), a closer palm (the BH8's 120 mm
-        fingers lie flat when open and reach 70 mm over the palm when the inner link stands)."""
-        return {"palm_offset_m": 0.084, "center_offset_m": 0.0, "margin_m": 0.05}
+        from activetouch.models.bh8 import GRID_DEFAULTS
+
+        return dict(GRID_DEFAULTS)
 
 
 @dataclass
@@ -153,7 +151,7 @@ def reset_twin(world: Any, hand: Any, spec: Any, seed: int) -> None:
 def make_twin_world(hand: Any, sim: Any, workcell: Any) -> Any:
     """The twin world for hand config `hand`: the BH8's for ``twin-bh8``, else the ReFlex's
     (a fake hand on the twin arm moves the ReFlex's body)."""
-    if isinstance(hand, TwinBH8HandConfig):
+    if getattr(hand, "family", "reflex") == "bh8":  # the twin, or the BH8 on its emulator
         from activetouch.sim.bh8 import BH8World  # deferred: loads pybullet
 
         return BH8World(sim, workcell=workcell)
@@ -163,11 +161,13 @@ def make_twin_world(hand: Any, sim: Any, workcell: Any) -> Any:
 
 
 def make_twin_hand(hand: Any, world: Any, sim: Any, seed: int | None = None) -> Any:
-    """The nominal twin hand on `world` (`make_twin_world`)."""
-    if isinstance(hand, TwinBH8HandConfig):
+    """The nominal twin hand on `world` (`make_twin_world`); the BH8's with the twin's
+    default settings when `hand` is the emulated driver's."""
+    if getattr(hand, "family", "reflex") == "bh8":
         from activetouch.sim.bh8 import SimBH8Hand  # deferred: loads pybullet
 
-        return SimBH8Hand(world, hand, sim, seed)
+        twin = hand if isinstance(hand, TwinBH8HandConfig) else TwinBH8HandConfig()
+        return SimBH8Hand(world, twin, sim, seed)
     from activetouch.sim.hand import SimHand  # deferred: loads pybullet
 
     return SimHand(world, sim, seed)

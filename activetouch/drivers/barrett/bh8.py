@@ -131,6 +131,9 @@ class BarrettBH8Config(HandConfig):
     def make(self, ctx: DeviceContext) -> Hand:
         return BarrettBH8Hand(self)
 
+    def default_grid(self) -> dict[str, Any] | None:
+        return dict(kinematics.GRID_DEFAULTS)
+
 
 @dataclass
 class Puck:
@@ -606,6 +609,14 @@ class BarrettBH8Hand(Hand):
 
     def _idle_all(self) -> None:
         self._send(codec.GROUP_HAND, codec.encode_set(self.pucks[codec.F1].ids.MODE, 0))
+
+    def wait_fresh_reading(self) -> None:
+        """Return once a whole reading asked for after this call has come in (one in flight
+        may have been asked for before): StreamLostError if none does in time."""
+        with self._cond:
+            seq = self._latest.seq if self._latest is not None else -1
+        r = self._wait_reading(seq, 2 * self.cfg.stream_timeout_s)
+        self._wait_reading(r.seq, 2 * self.cfg.stream_timeout_s)
 
     def _wait_reading(
         self, after_seq: int, timeout: float, check_stop: bool = True, wait_stale: bool = False
