@@ -286,7 +286,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     root = paths.data_dir(args.data)
-    model_dir = model_path(root, args.model)
+    family = load_config(None, args.set).hand.family  # the hand's own default model
+    model_dir = model_path(root, args.model, family)
     model = load_trained(model_dir)
     objects = args.objects.split(",") if args.objects else list(model.class_names)
     seeds = parse_seeds(args.seeds)

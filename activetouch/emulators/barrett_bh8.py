@@ -286,6 +286,9 @@ class BH8Emulator(ThreadedEmulator):
     def _update_fingers(self) -> None:
         motors = [self.pucks[n].actual / self.cpr for n in NODES[:3]]
         self.fingers.update(motors, self.pucks[SPREAD_NODE].actual / self.cpr / SPREAD_RATIO)
+        for n in NODES[:3]:  # a finger that stalled during this tick is where it stalled
+            p = self.pucks[n]
+            p.actual = min(p.actual, self._stall_counts(p))
 
     def _advance(self, dt_ms: float) -> None:
         for p in self.pucks.values():

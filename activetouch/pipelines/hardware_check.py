@@ -18,6 +18,7 @@ from typing import Any
 from activetouch.calibration import store
 from activetouch.config import Config
 from activetouch.devices import DeviceContext
+from activetouch.errors import DeviceFaultError
 
 OK, WARN, FAIL, SKIP = "ok", "warn", "fail", "skip"
 
@@ -258,9 +259,188 @@ def check_arm(cfg: Config, ctx: DeviceContext, seconds: float) -> list[Step]:
 
 
 def hardware_check(cfg: Config, root: Path, seconds: float = 1.0) -> list[Step]:
-    """Every step for the configured hand and arm (a simulated one is checked as well, briefly)."""
+    """Every step for the configured hand and arm (a simulated one is checked as well, briefly);
+    the BarrettHand has steps of its own (`check_bh8_hand`)."""
     ctx = DeviceContext(cfg, root)
     try:
-        return check_hand(cfg, root, ctx, seconds) + check_arm(cfg, ctx, seconds)
+        if cfg.hand.type == BH8:
+            hand_steps = check_bh8_hand(cfg, ctx, seconds)
+        else:
+            hand_steps = check_hand(cfg, root, ctx, seconds)
+        return hand_steps + check_arm(cfg, ctx, seconds)
     finally:
         ctx.close()
+
+
+# -- the BarrettHand BH8 ---------------------------------------------------------------------
+
+BH8 = "barrett-bh8"
+BH8_CONNECT_FIX = (
+    "power the hand, bring its CAN link up at 1 Mbit/s (sudo ip link set can0 type can bitrate "
+    "1000000; sudo ip link set can0 up; `ip -details link show can0` says ERROR-ACTIVE) and "
+    "check hand.can_interface / hand.can_channel and the bus terminations (docs/drivers.md)"
+)
+BH8_INIT_FIX = (
+    "set hand.initialize_on_connect = true once the hand is clear of people and objects: the "
+    "HI moves every finger and the spread to their open stops"
+)
+
+
+def _cells(ids: Any) -> str:
+    """Cell ids with their pad: ``29 (F2 cell 5)``."""
+    from activetouch.models.bh8 import CELLS_PER_PAD, PAD_NAMES
+
+    return ", ".join(
+        f"{int(i)} ({PAD_NAMES[int(i) // CELLS_PER_PAD]} cell {int(i) % CELLS_PER_PAD})"
+        for i in ids
+    )
+
+
+def check_bh8_hand(cfg: Config, ctx: DeviceContext, seconds: float) -> list[Step]:
+    """The BarrettHand's steps: connect (nothing moves unless ``hand.initialize_on_connect``
+    asks for the HI), its pucks, the stream (fresh readings at the poll rate), the tactile
+    pads at rest (no cell in contact; masked stuck cells named) and whether it is initialised
+    (motion needs it). The check itself moves the hand only if it is initialised and its
+    fingers are not open (it opens them to read the pads at rest)."""
+    import numpy as np
+
+    from activetouch.pipelines.hardware_check import FAIL, OK, WARN, Step, stream_rate
+
+    hc = cfg.hand
+    try:
+        hand = hc.make(ctx)
+    except Exception as e:
+        return [Step("hand", "settings", FAIL, f"{type(e).__name__}: {e}", "fix the setting named")]
+    t = time.monotonic()
+    try:
+        hand.connect()
+    except Exception as e:
+        # A puck fault names what to check itself.
+        fix = "" if isinstance(e, DeviceFaultError) else BH8_CONNECT_FIX
+        return [Step("hand", "connect", FAIL, f"{type(e).__name__}: {e}", fix)]
+    steps: list[Step] = []
+    try:
+        took = time.monotonic() - t
+        moved = (
+            "initialised at connect (hand.initialize_on_connect: the fingers and the spread "
+            "moved to their open stops)"
+            if hand.initialized
+            else "nothing moved"
+        )
+        steps.append(
+            Step(
+                "hand",
+                "connect",
+                OK,
+                f"{BH8} connected in {took:.1f} s on {hc.can_interface} {hc.can_channel}; {moved}",
+            )
+        )
+        pucks = "; ".join(
+            f"{p.name} firmware {p.vers}"
+            + (", tactile pad" if p.tact else ", no tactile pad")
+            + (", strain gauge" if p.strain else "")
+            for p in hand.pucks.values()
+        )
+        fault = hand.fault
+        steps.append(
+            Step("hand", "pucks", FAIL, str(fault), "power-cycle the hand; see the message")
+            if fault is not None
+            else Step("hand", "pucks", OK, f"{pucks} (positions and strain plausible)")
+        )
+        expected = 1.0 / hc.control_period_s
+        hz = stream_rate(hand.state, seconds, lambda s: s.stamp)
+        stats = hand.stats()
+        frames = f"frames: {stats['received']} received, {stats['refused']} refused"
+        if hz == 0 or hand.state().stale:
+            steps.append(
+                Step(
+                    "hand",
+                    "stream",
+                    FAIL,
+                    f"no fresh readings ({hz:.0f} Hz): a puck is silent or the bus is down; "
+                    + frames,
+                    BH8_CONNECT_FIX,
+                )
+            )
+        elif hz < expected / 2:
+            steps.append(
+                Step(
+                    "hand",
+                    "stream",
+                    WARN,
+                    f"{hz:.0f} Hz (expected ~{expected:.0f}: one reading per "
+                    f"hand.control_period_s = {hc.control_period_s:g} s); {frames}",
+                    "check the bus load (candump) and that this PC is not overloaded",
+                )
+            )
+        else:
+            steps.append(
+                Step("hand", "stream", OK, f"{hz:.0f} Hz (poll rate {expected:.0f} Hz); {frames}")
+            )
+        opened = ""
+        if hand.initialized and hand.fault is None:
+            st = hand.state()
+            if not np.all(np.abs(st.finger_angles) <= hc.open_tolerance_rad):
+                try:  # initialised: allowed; the pads are read with the hand open
+                    hand.open()
+                    opened = "; the fingers were opened first"
+                except Exception as e:
+                    opened = f"; opening the fingers first failed ({type(e).__name__}: {e})"
+        st = hand.state()
+        contact = np.flatnonzero(st.contact)
+        masked = np.flatnonzero(getattr(st, "masked", np.zeros(0, dtype=bool)))
+        where = "with the hand open" if hand.initialized else "where the fingers are"
+        if contact.size:
+            steps.append(
+                Step(
+                    "hand",
+                    "tactile at rest",
+                    FAIL,
+                    f"cells {_cells(contact)} read contact {where}, nothing touching{opened}",
+                    "clear the pads and reconnect (the pads are tared at connect); a cell that "
+                    "stays on: check its pad and the puck's cable",
+                )
+            )
+        elif masked.size:
+            steps.append(
+                Step(
+                    "hand",
+                    "tactile at rest",
+                    WARN,
+                    f"cells {_cells(masked)} stuck at full scale: masked (never reported); "
+                    f"no other cell in contact {where}{opened}",
+                    "check those pads and their pucks' cables; power-cycle the hand",
+                )
+            )
+        else:
+            steps.append(
+                Step(
+                    "hand",
+                    "tactile at rest",
+                    OK,
+                    f"no cell of {len(st.contact)} in contact {where} (tared at connect){opened}",
+                )
+            )
+        if hand.initialized:
+            steps.append(
+                Step(
+                    "hand",
+                    "initialisation",
+                    OK,
+                    "initialised (HI): open, preshape and guarded_close allowed",
+                )
+            )
+        else:
+            steps.append(
+                Step(
+                    "hand",
+                    "initialisation",
+                    WARN,
+                    "not initialised: open, preshape and guarded_close are refused until the "
+                    "HI (hand.initialize_on_connect = false)",
+                    BH8_INIT_FIX,
+                )
+            )
+    finally:
+        hand.disconnect()
+    return steps

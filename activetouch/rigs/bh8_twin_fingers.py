@@ -26,6 +26,7 @@ import numpy as np
 from activetouch.models import bh8
 from activetouch.sim.bh8 import BH8World, SimBH8Hand
 
+SETTLE_HALVINGS = 8  # a tick's overshoot bisected to 1/256 of it
 K = 1 / bh8.INNER_RATIO + 1 / bh8.OUTER_RATIO  # link radians (inner + outer) per motor radian
 
 
@@ -91,9 +92,9 @@ class BH8TwinFingers:
                 return
             if np.array_equal(m, self.motors) and spread == self.spread and self.reads:
                 return
-            prev_inner = self.inner.copy()
+            prev_inner, prev_motors = self.inner.copy(), self.motors.copy()
             closing = m > self.motors
-            self.motors, self.spread = m, float(spread)
+            self.motors, self.spread = m.copy(), float(spread)
             for f in range(3):
                 if m[f] < self.stall[f] - 1e-9 and not closing[f]:
                     self.stall[f] = math.inf  # backed off: free to close again
@@ -110,13 +111,30 @@ class BH8TwinFingers:
             if redo:
                 self._links()
                 pressures, depth, load = self._pose()
-            for f in range(3):
-                pad = (pressures[24 * f : 24 * f + 24] > self.h.contact_threshold).any()
-                deepest = self.h.pad_depth_m if pad else self.h.strain_depth_m
-                if closing[f] and depth[f, 1] > deepest and math.isinf(self.stall[f]):
-                    self.stall[f] = m[f]  # the motor stalls against the pressed link
+            deep = [f for f in range(3) if closing[f] and depth[f, 1] > self._deepest(pressures, f)]
+            if deep:
+                # A tick (longer on a loaded machine) carried the fingertip further in than it
+                # can go: the motor stalls where it got that deep (bisected), not beyond.
+                lo, hi = prev_motors[deep], m[deep]
+                for _ in range(SETTLE_HALVINGS):
+                    mid = (lo + hi) / 2
+                    self.motors[deep] = mid
+                    self._links()
+                    p_mid, d_mid, _ = self._pose()
+                    over = np.array([d_mid[f, 1] > self._deepest(p_mid, f) for f in deep])
+                    lo, hi = np.where(over, lo, mid), np.where(over, mid, hi)
+                self.motors[deep] = lo
+                self.stall[deep] = lo
+                self._links()
+                pressures, depth, load = self._pose()
             self.last, self.load = pressures, load
             self.reads += 1
+
+    def _deepest(self, pressures: np.ndarray, f: int) -> float:
+        """How deep finger f's outer link may go: into its pad's foam once the pad feels
+        something, else as far as its strain gauge lets the twin's close go."""
+        pad = (pressures[24 * f : 24 * f + 24] > self.h.contact_threshold).any()
+        return self.h.pad_depth_m if pad else self.h.strain_depth_m
 
     # -- the twin -------------------------------------------------------------------------
 

@@ -34,6 +34,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -195,6 +196,8 @@ class BarrettBH8Hand(Hand):
         self.fault: DeviceFaultError | None = None
         self.last_close_reasons: tuple[str, ...] = ()
         self.masked = np.zeros(kinematics.N_CELLS, dtype=bool)
+        self._recognition_mask = np.zeros(kinematics.N_CELLS, dtype=bool)  # `mask_sensors`
+        self._thresholds = np.full(kinematics.N_CELLS, float(cfg.contact_threshold))
         self.zero = np.zeros(kinematics.N_CELLS)
         self.strain_zero = np.zeros(3)
         self.tared = False
@@ -764,7 +767,27 @@ class BarrettBH8Hand(Hand):
     def _contact(self, r: Reading) -> np.ndarray:
         if not self.tared:
             return np.zeros(kinematics.N_CELLS, dtype=bool)
-        return ((r.cells - self.zero) >= self.cfg.contact_threshold) & ~self.masked
+        over = (r.cells - self.zero) >= self._thresholds
+        return over & ~self.masked & ~self._recognition_mask
+
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        """Ignore these cells (replacing an earlier mask): no finger stops on them and no
+        grasp reports them. Cells masked as stuck stay masked."""
+        ids = np.asarray(list(sensor_ids), dtype=np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= kinematics.N_CELLS):
+            raise ValueError(f"cell ids must be 0..{kinematics.N_CELLS - 1}, got {ids.tolist()}")
+        mask = np.zeros(kinematics.N_CELLS, dtype=bool)
+        mask[ids] = True
+        self._recognition_mask = mask
+        return True
+
+    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
+        """Per-cell contact thresholds above the tare (never under `contact_threshold`)."""
+        t = np.asarray(list(thresholds), dtype=np.float64)
+        if t.shape != (kinematics.N_CELLS,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"contact thresholds must be {kinematics.N_CELLS} finite values")
+        self._thresholds = np.maximum(t, self.cfg.contact_threshold)
+        return True
 
     def open(self) -> None:
         """Fingers to their open stop (CMD OPEN), spread unchanged; allowed while stopped."""

@@ -104,10 +104,10 @@ def test_the_bh8_is_served_with_its_96_cells(served: Served, client_session) -> 
     msg = published.wait(timeout=WAIT_S)
     assert len(msg.pressures) == len(msg.contact) == 96 and published.invalid == 0
 
-    # 96 thresholds and a mask of cells beyond the ReFlex's 38 are taken (this driver applies
-    # neither itself: False, and the session filters the grasps); other counts are refused.
-    assert hand.set_contact_thresholds([0.5] * 96) is False
-    assert hand.mask_sensors([40, 95]) is False
+    # 96 thresholds and a mask of cells beyond the ReFlex's 38 are taken and applied by the
+    # driver (no finger stops on a masked cell, no grasp reports it); other counts are refused.
+    assert hand.set_contact_thresholds([0.5] * 96) is True
+    assert hand.mask_sensors([40, 95]) is True
     with pytest.raises(MessageError, match=r"38 values, expected 96.*barrett-bh8, 96 sensors"):
         hand.set_contact_thresholds([0.5] * 38)
     with pytest.raises(MessageError, match=r"sensor_ids\[0\]`: Expected `int` <= 95"):
@@ -115,9 +115,9 @@ def test_the_bh8_is_served_with_its_96_cells(served: Served, client_session) -> 
 
     grasp = hand.guarded_close()
     ids = grasp.sensor_ids.tolist()
-    # F1's pad (0..23), F2's (24..47), F3's (48..71): cells 10, 13, 16 of each.
-    assert ids == [10, 13, 16, 34, 37, 40, 58, 61, 64]
-    assert grasp.xyz.shape == (9, 3) and np.all(np.isfinite(grasp.xyz))
+    # F1's pad (0..23), F2's (24..47), F3's (48..71): cells 10, 13, 16 of each, 40 masked.
+    assert ids == [10, 13, 16, 34, 37, 58, 61, 64]
+    assert grasp.xyz.shape == (8, 3) and np.all(np.isfinite(grasp.xyz))
     assert np.all(grasp.pressures > 0)
     after = hand.state()
     assert set(np.flatnonzero(after.contact).tolist()) >= set(ids)

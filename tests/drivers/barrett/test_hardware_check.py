@@ -8,10 +8,9 @@ import itertools
 import json
 from pathlib import Path
 
-from activetouch.cli.commands.hardware import BH8_CONNECT_FIX, bh8_hardware_check
 from activetouch.config import load_config
 from activetouch.emulators.barrett_bh8 import BH8Emulator, BH8EmulatorConfig, Faults
-from activetouch.pipelines.hardware_check import FAIL, OK, WARN
+from activetouch.pipelines.hardware_check import BH8_CONNECT_FIX, FAIL, OK, WARN, hardware_check
 
 _n = itertools.count()
 
@@ -41,7 +40,7 @@ def test_an_uninitialised_hand_moves_nothing_and_names_its_stuck_cell(tmp_path: 
     emu = BH8Emulator(BH8EmulatorConfig(channel=channel, faults=Faults(stuck_cells=[(12, 5)])))
     with emu:
         before = emu.joints()
-        steps = steps_by_name(bh8_hardware_check(config(channel), tmp_path, seconds=0.5))
+        steps = steps_by_name(hardware_check(config(channel), tmp_path, seconds=0.5))
         assert emu.joints() == before
         assert emu.counts["hi"] == 0 and emu.counts["motion_before_init"] == 0
     assert [k for k in steps if k[0] == "hand"] == [
@@ -68,7 +67,7 @@ def test_an_initialised_hand_passes(tmp_path: Path) -> None:
     channel = f"bh8-check-{next(_n)}"
     with BH8Emulator(BH8EmulatorConfig(channel=channel)) as emu:
         cfg = config(channel, "hand.initialize_on_connect=true")
-        steps = steps_by_name(bh8_hardware_check(cfg, tmp_path, seconds=0.5))
+        steps = steps_by_name(hardware_check(cfg, tmp_path, seconds=0.5))
         assert emu.counts["hi"] == 4  # asked for by the setting, at connect
     assert "initialised at connect" in steps[("hand", "connect")].detail
     rest = steps[("hand", "tactile at rest")]
@@ -79,7 +78,7 @@ def test_an_initialised_hand_passes(tmp_path: Path) -> None:
 
 def test_no_hand_on_the_bus_fails_the_connect_with_the_fix(tmp_path: Path) -> None:
     cfg = config(f"bh8-check-nobody-{next(_n)}", "hand.reply_timeout_s=0.05")
-    steps = steps_by_name(bh8_hardware_check(cfg, tmp_path, seconds=0.2))
+    steps = steps_by_name(hardware_check(cfg, tmp_path, seconds=0.2))
     connect = steps[("hand", "connect")]
     assert connect.status == FAIL and "no reply from F1 (puck 11)" in connect.detail
     assert connect.fix == BH8_CONNECT_FIX and "ip link set can0" in connect.fix
