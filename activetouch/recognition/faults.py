@@ -58,9 +58,14 @@ class FaultySensors:
     stuck: np.ndarray  # (m,) int, disjoint from dead
 
 
-def draw_faulty_sensors(faults: SensorFaults, seed: int) -> FaultySensors:
-    """The run's dead and stuck sensors, uniformly among all 38, from `seed`."""
-    order = np.random.default_rng([int(seed), _FAULT_TAG, 1]).permutation(N_SENSORS)
+def draw_faulty_sensors(
+    faults: SensorFaults, seed: int, n_sensors: int = N_SENSORS
+) -> FaultySensors:
+    """The run's dead and stuck sensors, uniformly among all `n_sensors` (the ReFlex's 38,
+    the BH8's 96), from `seed`."""
+    if faults.dead + faults.stuck > n_sensors:
+        raise ValueError(f"{faults.dead} dead and {faults.stuck} stuck of {n_sensors} sensors")
+    order = np.random.default_rng([int(seed), _FAULT_TAG, 1]).permutation(n_sensors)
     return FaultySensors(
         dead=np.sort(order[: faults.dead]),
         stuck=np.sort(order[faults.dead : faults.dead + faults.stuck]),
@@ -78,11 +83,13 @@ def faulty_reading(
     sensors: FaultySensors,
     threshold: float,
     rng: np.random.Generator,
+    noise_scale: float = 1.0,
 ) -> np.ndarray:
-    """(38,) pressures as the faulty sensors read them (a new array)."""
-    p = np.array(pressures, dtype=np.float64, copy=True).reshape(N_SENSORS)
+    """(n,) pressures as the faulty sensors read them (a new array); the extra noise is
+    `faults.noise_std` x `noise_scale` (a hand in other units scales the ReFlex's)."""
+    p = np.array(pressures, dtype=np.float64, copy=True).reshape(-1)
     if faults.noise_std > 0:
-        p += rng.normal(0.0, faults.noise_std, N_SENSORS)
+        p += rng.normal(0.0, faults.noise_std * noise_scale, len(p))
     p[sensors.dead] = 0.0
     p[sensors.stuck] = STUCK_FACTOR * threshold
     return p
@@ -92,10 +99,10 @@ def spurious_contacts(
     in_contact: np.ndarray, faults: SensorFaults, sensors: FaultySensors, rng: np.random.Generator
 ) -> np.ndarray:
     """Sensor ids that report a false contact in this grasp: quiet, not dead, each with
-    probability `faults.spurious`. `in_contact`: (38,) bool, the grasp's real contacts."""
+    probability `faults.spurious`. `in_contact`: (n,) bool, the grasp's real contacts."""
     if faults.spurious <= 0:
         return np.zeros(0, dtype=np.int64)
-    quiet = ~np.asarray(in_contact, dtype=bool).reshape(N_SENSORS)
+    quiet = ~np.asarray(in_contact, dtype=bool).reshape(-1)
     quiet[sensors.dead] = False
-    hit = rng.random(N_SENSORS) < faults.spurious  # drawn for all: the stream stays aligned
+    hit = rng.random(len(quiet)) < faults.spurious  # drawn for all: the stream stays aligned
     return np.flatnonzero(quiet & hit)

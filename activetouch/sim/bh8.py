@@ -39,11 +39,13 @@ import numpy as np
 from activetouch.config import SimConfig, WorkcellConfig
 from activetouch.interfaces import Grasp, Hand, HandState, StopLatch
 from activetouch.models import bh8
+from activetouch.sim.faulty import FaultyReadings
 from activetouch.sim.hand import pose_keyed_rng, site_forces
 from activetouch.sim.pybullet import pb
 from activetouch.sim.world import HandContacts, HandLinks, SimWorld
 
 if TYPE_CHECKING:
+    from activetouch.recognition.faults import SensorFaults
     from activetouch.sim.devices import TwinBH8HandConfig
 
 STOP_CONTACT, STOP_STRAIN, STOP_LIMIT = "contact", "strain", "limit"
@@ -334,3 +336,23 @@ class SimBH8Hand(Hand):
         if h.noise_std > 0:
             pressures = pressures + rng.normal(0.0, h.noise_std, bh8.N_CELLS)
         return pressures, depth
+
+
+class FaultySimBH8Hand(FaultyReadings, SimBH8Hand):
+    """The twin's BH8 read through faulty cells; the extra noise scaled from the ReFlex's
+    units by the ratio of the contact thresholds (0.5 / 20: noise +5 is +0.125 cell units)."""
+
+    def __init__(
+        self,
+        world: BH8World,
+        hcfg: TwinBH8HandConfig,
+        cfg: SimConfig,
+        faults: SensorFaults,
+        seed: int | None = None,
+    ) -> None:
+        self.faults = faults
+        self.noise_scale = hcfg.contact_threshold / cfg.contact_threshold
+        super().__init__(world, hcfg, cfg, seed)
+
+    def _fault_threshold(self) -> float:
+        return float(self.hcfg.contact_threshold)

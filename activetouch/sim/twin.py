@@ -16,26 +16,23 @@ import numpy as np
 from activetouch.config import SimConfig, WorkcellConfig
 from activetouch.device_types import HandConfig
 from activetouch.errors import ConfigError
-from activetouch.interfaces import N_SENSORS, Grasp, Hand
+from activetouch.interfaces import Hand
 from activetouch.objects.library import ObjectSpec
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.floating import FloatingWristMotion
 from activetouch.recognition.faults import (
-    SPURIOUS_FACTOR,
     SensorFaults,
-    draw_faulty_sensors,
-    fault_rng,
-    faulty_reading,
-    spurious_contacts,
 )
+from activetouch.sim.bh8 import FaultySimBH8Hand
 from activetouch.sim.devices import (
     TwinBH8HandConfig,
     make_twin_hand,
     make_twin_world,
     reset_twin,
 )
+from activetouch.sim.faulty import FaultyReadings
 from activetouch.sim.hand import SimHand
-from activetouch.sim.world import HandContacts, SimArm, SimWorld
+from activetouch.sim.world import SimArm, SimWorld
 
 _PLACEMENT_TAG = 0x91ACE  # keeps the placement draw apart from the hand's noise streams
 
@@ -76,47 +73,14 @@ def sensor_faults(cfg: SimConfig) -> SensorFaults:
         raise ConfigError(f"sim.fault_*: {e}") from None
 
 
-class FaultySimHand(SimHand):
-    """The twin's hand read through faulty sensors (`activetouch.recognition.faults`): noise,
-    dead and stuck sensors act on every reading, so the guarded close reacts to them as the
-    ReFlex would; spurious contacts are added to the reported grasp only."""
+class FaultySimHand(FaultyReadings, SimHand):
+    """The twin's ReFlex read through faulty sensors."""
 
     def __init__(
         self, world: SimWorld, cfg: SimConfig, faults: SensorFaults, seed: int | None = None
     ) -> None:
         self.faults = faults
         super().__init__(world, cfg, seed=seed)  # calls reseed(), which draws the faults
-
-    def reseed(self, seed: int) -> None:
-        super().reseed(seed)
-        self.faulty = draw_faulty_sensors(self.faults, self.seed)
-        self._fault_rng = fault_rng(self.seed)
-
-    def _sense(
-        self, contacts: HandContacts, rng: np.random.Generator
-    ) -> tuple[np.ndarray, np.ndarray]:
-        pressures, depth = super()._sense(contacts, rng)
-        thr = self.cfg.contact_threshold
-        return faulty_reading(pressures, self.faults, self.faulty, thr, self._fault_rng), depth
-
-    def guarded_close(self) -> Grasp:
-        grasp = super().guarded_close()
-        in_contact = np.zeros(N_SENSORS, dtype=bool)
-        in_contact[grasp.sensor_ids] = True
-        extra = spurious_contacts(in_contact, self.faults, self.faulty, self._fault_rng)
-        extra = extra[~self.masked[extra]]  # a masked sensor reports nothing, spikes neither
-        if extra.size == 0:
-            return grasp
-        ids = np.concatenate([grasp.sensor_ids, extra])
-        order = np.argsort(ids, kind="stable")  # sensor ids ascending, as SimHand reports
-        pressure = np.full(extra.size, SPURIOUS_FACTOR * self.cfg.contact_threshold)
-        return Grasp(
-            sensor_ids=ids[order],
-            xyz=np.concatenate([grasp.xyz, self.world.sensor_sites_hand()[extra]])[order],
-            pressures=np.concatenate([grasp.pressures, pressure])[order],
-            finger_angles=grasp.finger_angles,
-            preshape=grasp.preshape,
-        )
 
 
 @dataclass
@@ -177,19 +141,15 @@ def open_twin(
     run_seed = cfg.seed if seed is None else int(seed)
     err = placement_error(cfg, run_seed)
     faults = sensor_faults(cfg)
-    bh8 = isinstance(hand, TwinBH8HandConfig)
-    if bh8 and faults.active:
-        raise ConfigError(
-            "sim.fault_*: the sensor faults are modelled for the ReFlex's 38 sensors only, "
-            "not for hand.type=twin-bh8"
-        )
     world = make_twin_world(hand, cfg, workcell)
     try:
         if spec is not None:
             place_displaced(world, spec, err)
         arm = SimArm(world)
-        if faults.active:
-            hand_: SimHand = FaultySimHand(world, cfg, faults, seed)
+        if faults.active and isinstance(hand, TwinBH8HandConfig):
+            hand_: Hand = FaultySimBH8Hand(world, hand, cfg, faults, seed)
+        elif faults.active:
+            hand_ = FaultySimHand(world, cfg, faults, seed)
         else:
             hand_ = make_twin_hand(hand, world, cfg, seed)
         yield Twin(world, hand_, arm, TwinWrist(arm), cfg)

@@ -178,12 +178,27 @@ def test_the_bh8_config_brings_its_own_grid_unless_set() -> None:
     assert load_config(None, []).grid.palm_offset_m == pytest.approx(0.0896)
     with pytest.raises(ConfigError, match=r"hand\.pad_depth_m"):
         load_config(None, ["hand.type=twin-bh8", "hand.pad_depth_m=0"])
-    with pytest.raises(ConfigError, match="fault"):
-        from activetouch.sim.twin import open_twin
 
-        cfg = load_config(None, ["hand.type=twin-bh8", "sim.fault_stuck=1"])
-        with open_twin(None, cfg.sim, hand=cfg.hand):
-            pass
+
+def test_faulty_cells_on_the_bh8_twin() -> None:
+    """The robot's sensor faults on the BH8's 96 cells: a stuck cell reads over threshold at
+    rest, dead ones read nothing, the extra noise is the ReFlex's scaled to cell units."""
+    from activetouch.sim.twin import open_twin
+
+    cfg = load_config(
+        None,
+        ["hand.type=twin-bh8", "sim.fault_stuck=1", "sim.fault_dead=4", "sim.fault_noise_std=5"],
+    )
+    with open_twin(None, cfg.sim, seed=3, hand=cfg.hand) as tw:
+        hand = tw.hand
+        assert hand.n_sensors == 96 and hand.noise_scale == pytest.approx(0.5 / 20)
+        stuck, dead = hand.faulty.stuck, hand.faulty.dead
+        assert len(stuck) == 1 and len(dead) == 4 and 0 <= stuck.max() < 96
+        st = hand.state()
+        assert st.contact[stuck].all() and np.all(st.pressures[dead] == 0.0)
+        # Noise +5 ReFlex units is +0.125 cell units: quiet cells stay under the 0.5 threshold.
+        quiet = np.setdiff1d(np.arange(96), np.concatenate([stuck, dead]))
+        assert st.pressures[quiet].std() < 0.3 and not st.contact[quiet].any()
 
 
 @pytest.mark.slow

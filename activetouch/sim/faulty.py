@@ -1,0 +1,69 @@
+"""Faulty sensors over a twin hand (`activetouch.recognition.faults`), for either hand."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from activetouch.interfaces import Grasp
+from activetouch.recognition.faults import (
+    SPURIOUS_FACTOR,
+    SensorFaults,
+    draw_faulty_sensors,
+    fault_rng,
+    faulty_reading,
+    spurious_contacts,
+)
+from activetouch.sim.world import HandContacts
+
+
+class FaultyReadings:
+    """Faulty sensors (`activetouch.recognition.faults`) over a twin hand (mixed in before
+    `SimHand` or `SimBH8Hand`): noise, dead and stuck sensors act on every reading, so the
+    guarded close reacts to them as the real hand would; spurious contacts are added to the
+    reported grasp only. The extra noise is in the ReFlex's units, scaled for another hand by
+    the ratio of the contact thresholds (`noise_scale`)."""
+
+    faults: SensorFaults
+    noise_scale: float = 1.0
+
+    def reseed(self, seed: int) -> None:
+        super().reseed(seed)  # type: ignore[misc]
+        self.faulty = draw_faulty_sensors(self.faults, self.seed, self.n_sensors)  # type: ignore[attr-defined]
+        self._fault_rng = fault_rng(self.seed)  # type: ignore[attr-defined]
+
+    def _sense(self, contacts: HandContacts, rng: np.random.Generator):  # type: ignore[no-untyped-def]
+        pressures, depth = super()._sense(contacts, rng)  # type: ignore[misc]
+        return (
+            faulty_reading(
+                pressures,
+                self.faults,
+                self.faulty,
+                self._fault_threshold(),
+                self._fault_rng,
+                self.noise_scale,
+            ),
+            depth,
+        )
+
+    def _fault_threshold(self) -> float:
+        return float(self.cfg.contact_threshold)  # type: ignore[attr-defined]
+
+    def guarded_close(self) -> Grasp:
+        grasp = super().guarded_close()  # type: ignore[misc]
+        in_contact = np.zeros(self.n_sensors, dtype=bool)  # type: ignore[attr-defined]
+        in_contact[grasp.sensor_ids] = True
+        extra = spurious_contacts(in_contact, self.faults, self.faulty, self._fault_rng)
+        extra = extra[~self.masked[extra]]  # type: ignore[attr-defined]
+        if extra.size == 0:
+            return grasp
+        ids = np.concatenate([grasp.sensor_ids, extra])
+        order = np.argsort(ids, kind="stable")  # sensor ids ascending, as the twin reports
+        pressure = np.full(extra.size, SPURIOUS_FACTOR * self._fault_threshold())
+        sites = self.world.sensor_sites_hand()  # type: ignore[attr-defined]
+        return Grasp(
+            sensor_ids=ids[order],
+            xyz=np.concatenate([grasp.xyz, sites[extra]])[order],
+            pressures=np.concatenate([grasp.pressures, pressure])[order],
+            finger_angles=grasp.finger_angles,
+            preshape=grasp.preshape,
+        )
