@@ -88,9 +88,18 @@ def finger_closure(grasp: Grasp) -> np.ndarray:
 def pose_weights(poses: np.ndarray, x: np.ndarray, sigma_m: float, sigma_rad: float) -> np.ndarray:
     """Gaussian weights (n,) of training poses (n, 7) around wrist pose `x` (7,): translation
     distance and rotation angle (q and -q alike)."""
-    d2 = np.sum((poses[:, :3] - x[:3]) ** 2, axis=1)
-    dot = np.abs(poses[:, 3:] @ (x[3:] / np.linalg.norm(x[3:])))
-    ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
+    return pose_weights_at(
+        poses, np.asarray(x, dtype=np.float64).reshape(1, 7), sigma_m, sigma_rad
+    )[0]
+
+
+def pose_weights_at(
+    poses: np.ndarray, x: np.ndarray, sigma_m: float, sigma_rad: float
+) -> np.ndarray:
+    """(P, n) Gaussian weights of training poses (n, 7) around each wrist pose of `x` (P, 7)."""
+    q = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
+    d2 = np.sum((x[:, None, :3] - poses[None, :, :3]) ** 2, axis=2)
+    ang = 2.0 * np.arccos(np.clip(np.abs(q @ poses[:, 3:].T), 0.0, 1.0))
     return np.exp(-d2 / (2.0 * sigma_m**2) - ang**2 / (2.0 * sigma_rad**2))
 
 
@@ -174,7 +183,6 @@ class GraspLikelihood:
         the weight cutoff are left out first (the poses are close together: one placement's
         hypotheses)."""
         x = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
-        q = x[:, 3:] / np.linalg.norm(x[:, 3:], axis=1, keepdims=True)
         s_m, s_r = params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg)
         reach = s_m * np.sqrt(2.0 * np.log(1.0 / _WEIGHT_CUTOFF))  # translation alone
         centre = x[:, :3].mean(axis=0)
@@ -185,28 +193,13 @@ class GraspLikelihood:
         P, K = len(x), self.n_classes
         if cand.size == 0:
             return np.full((P, K), np.log(1.0 + params.floor))
-        tp = self.poses[cand]
-        d2 = np.sum((x[:, None, :3] - tp[None, :, :3]) ** 2, axis=2)
-        dot = np.abs(q @ tp[:, 3:].T)
-        ang = 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
-        w = np.exp(-d2 / (2.0 * s_m**2) - ang**2 / (2.0 * s_r**2))
+        w = pose_weights_at(self.poses[cand], x, s_m, s_r)  # (P, cand)
         w[w <= _WEIGHT_CUTOFF] = 0.0
-        diff = self.masks[cand] ^ self._mask(grasp.sensor_ids)
-        if ignore is not None and len(ignore):
-            diff = diff & ~self._mask(ignore)
-        ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
-        dth = np.sum((self.closure[cand] - finger_closure(grasp)) ** 2, axis=1)
-        k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
-        onehot = np.zeros((len(cand), K))
-        onehot[np.arange(len(cand)), self.labels[cand]] = 1.0
-        num = (w * k) @ onehot  # (P, K)
-        den = w @ onehot
-        has = den > 0
-        lik = np.where(has, num / np.where(has, den, 1.0), 0.0)
-        n_has = has.sum(axis=1, keepdims=True)
-        mean = np.where(n_has > 0, lik.sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 1.0)
-        lik = np.where(has, lik, mean)  # no grasp near: no say (nowhere near any: 1)
-        return np.log(lik + params.floor)
+        keep = ~self._mask(ignore) if ignore is not None and len(ignore) else None
+        k = self._similarity(
+            cand, self._mask(grasp.sensor_ids)[None], finger_closure(grasp)[None], params, keep
+        )
+        return self._class_log_average(w, k, cand, params.floor)
 
     def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
         """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a
@@ -241,25 +234,43 @@ class GraspLikelihood:
         `keep`: the sensor bits compared (all if None)."""
         w = pose_weights(self.poses, x, params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg))
         near = np.flatnonzero(w > _WEIGHT_CUTOFF)
-        w = w[near]
-        diff = self.masks[near][None, :, :] ^ masks[:, None, :]
+        k = self._similarity(near, masks, closure, params, keep)
+        return self._class_log_average(w[near][None], k, near, params.floor)
+
+    def _similarity(
+        self,
+        rows: np.ndarray,
+        masks: np.ndarray,
+        closure: np.ndarray,
+        params: LikelihoodParams,
+        keep: np.ndarray | None,
+    ) -> np.ndarray:
+        """(n, R) kernel k between n grasps (masks (n, W), closure (n, 3)) and the training
+        grasps `rows`: Hamming distance of the sensor bits (`keep`: those compared) and the
+        fingers' closure."""
+        diff = self.masks[rows][None, :, :] ^ masks[:, None, :]
         if keep is not None:
             diff = diff & keep
         ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
-        dth = np.sum((self.closure[near][None, :, :] - closure[:, None, :]) ** 2, axis=2)
-        k = np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
-        onehot = np.zeros((len(near), self.n_classes))
-        onehot[np.arange(len(near)), self.labels[near]] = w
-        num = k @ onehot  # (n, K)
-        den = onehot.sum(axis=0)
-        has = den > 0
-        lik = np.zeros((len(masks), self.n_classes))
-        lik[:, has] = num[:, has] / den[has]
-        if has.any():
-            lik[:, ~has] = lik[:, has].mean(axis=1, keepdims=True)  # no grasp near: no say
-        else:
-            lik[:] = 1.0  # nowhere near the training poses: no evidence at all
-        return np.log(lik + params.floor)
+        dth = np.sum((self.closure[rows][None, :, :] - closure[:, None, :]) ** 2, axis=2)
+        return np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
+
+    def _class_log_average(
+        self, w: np.ndarray, k: np.ndarray, rows: np.ndarray, floor: float
+    ) -> np.ndarray:
+        """log of each class's pose-weighted mean kernel, p(g | y, x) = sum w k / sum w over
+        y's grasps among `rows`: (P, R) weights of P poses and (n, R) kernels of n grasps, one
+        of P and n being 1; (max(P, n), K). A class with no weight at a pose gets the mean of
+        those that have (no say); nowhere near any: 1."""
+        onehot = np.zeros((len(rows), self.n_classes))
+        onehot[np.arange(len(rows)), self.labels[rows]] = 1.0
+        num = (w * k) @ onehot
+        den = w @ onehot  # (P, K)
+        has = np.broadcast_to(den > 0, num.shape)
+        lik = np.where(has, num / np.where(den > 0, den, 1.0), 0.0)
+        n_has = has.sum(axis=1, keepdims=True)
+        mean = np.where(n_has > 0, lik.sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 1.0)
+        return np.log(np.where(has, lik, mean) + floor)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {
