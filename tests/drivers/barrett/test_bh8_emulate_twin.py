@@ -4,6 +4,8 @@ layer as `serve` makes it; it closes as the twin does, directly."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -73,3 +75,47 @@ def test_the_driver_on_the_twin_backed_emulator_closes_as_the_twin(tmp_path) -> 
     finally:
         direct_world.close()
         devices.close()
+
+
+@pytest.mark.slow
+def test_a_whole_recognition_runs_through_the_driver_on_the_emulator(tmp_path, capsys) -> None:
+    """A BH8 model trained in the twin, then a recognition through the driver's CAN frames on
+    the twin-backed emulator (as `serve --set hand.type=barrett-bh8 --set hand.emulate=twin`
+    makes it): it names the object, as the same recognition in the twin directly does."""
+    from activetouch import paths
+    from activetouch.cli.main import main
+    from activetouch.devices import make_devices
+    from activetouch.model import load_model
+    from activetouch.planning.policies import make_policy
+    from activetouch.session.loop import RecognitionSession
+    from activetouch.sim.devices import twin_rig
+
+    fast = ["--set", "hand.type=twin-bh8", "--set", "grid.step_deg=40"]
+    assert main(["train", "--objects", "cup,bowl", "--data", str(tmp_path), *fast]) == 0
+    capsys.readouterr()
+    model = load_model(paths.default_model(tmp_path, "bh8"))
+    direct = ["recognize", "--object", "bowl", "--data", str(tmp_path), *fast, "--json"]
+    assert main([*direct, "--max-moves", "3", "--policy", "greedy", "--no-record"]) == 0
+    assert json.loads(capsys.readouterr().out)["label"] == "bowl"
+    cfg = load_config(None, [*EMULATED, "grid.step_deg=40", "session.max_moves=3"])
+    devices = make_devices(cfg, tmp_path)
+    try:
+        hand = devices.hand
+        rig = twin_rig(devices.ctx)
+        devices.ctx.place("bowl", 0)
+        devices.wrist.set_placement(devices.placement())
+        before = hand.stats()["accepted"]
+        res = RecognitionSession(
+            hand,
+            devices.wrist,
+            model,
+            make_policy("greedy", cfg.planner, model.observation, model.classifier.kernel()),
+            cfg.session,
+            np.random.default_rng(0),
+            support_z=rig.world.support_z,
+        ).run()
+        stats = hand.stats()
+    finally:
+        devices.close()
+    assert res.moves >= 1 and res.label == "bowl"
+    assert stats["accepted"] - before > 50 and stats["crashes"] == 0  # paced by CAN frames
