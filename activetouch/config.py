@@ -478,7 +478,7 @@ def load_config(
     set_devices(cfg, devices)
     _check_choices(cfg)
     default_workcell(cfg)
-    default_grid(cfg)
+    hand_defaults(cfg)
     cfg.workcell.check()
     cfg.recording.check()
     cfg.ros2.check()
@@ -514,6 +514,7 @@ def profile_settings(cfg: Config) -> dict[str, Any]:
     print them (and results store them) beside the profile's name."""
     rc, obs = cfg.recognition, cfg.observation
     out: dict[str, Any] = {
+        "hand.type": cfg.hand.type,
         "recognition.belief": rc.belief,
         "observation.translation_cell_m": obs.translation_cell_m,
         "grid.margin_m": cfg.grid.margin_m,
@@ -522,6 +523,7 @@ def profile_settings(cfg: Config) -> dict[str, Any]:
     if rc.belief == "pose":
         out["recognition.pose_range_m"] = rc.pose_range_m
         out["recognition.pose_range_deg"] = rc.pose_range_deg
+        out["recognition.pose_floor"] = rc.pose_floor
     return out
 
 
@@ -542,14 +544,15 @@ def default_workcell(cfg: Config) -> None:
         log.info("arm.type=%s: using its default [workcell] %s", cfg.arm.type, values)
 
 
-def default_grid(cfg: Config) -> None:
-    """A hand of another size (the BH8) gets its own `[grid]` values for the settings the
-    configuration left at their defaults."""
-    values = cfg.hand.default_grid() or {}
-    base = GridConfig()
-    for key, value in values.items():
-        if getattr(cfg.grid, key) == getattr(base, key):
-            setattr(cfg.grid, key, value)
+def hand_defaults(cfg: Config) -> None:
+    """Another hand (the BH8) brings its own values of some `[grid]` and `[recognition]`
+    settings (its size, its cells), used where the configuration left them at the defaults."""
+    for section, values in (cfg.hand.default_settings() or {}).items():
+        current = getattr(cfg, section)
+        base = type(current)()
+        for key, value in values.items():
+            if getattr(current, key) == getattr(base, key):
+                setattr(current, key, value)
 
 
 def set_devices(cfg: Config, raw: dict[str, dict], only: tuple[str, ...] = DEVICE_SECTIONS) -> None:

@@ -67,9 +67,10 @@ class HandConfig(DeviceConfig):
     def make(self, ctx: DeviceContext) -> Hand:
         raise NotImplementedError
 
-    def default_grid(self) -> dict[str, Any] | None:
-        """`[grid]` values for this hand's size, used for the ones the configuration left at
-        their (ReFlex) defaults; None: the defaults suit it."""
+    def default_settings(self) -> dict[str, dict[str, Any]] | None:
+        """Section -> values for this hand (`[grid]` for its size, `[recognition]` for its
+        sensors), used for the ones the configuration left at their (ReFlex) defaults; None:
+        the defaults suit it."""
         return None
 
 

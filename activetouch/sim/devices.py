@@ -111,10 +111,10 @@ class TwinBH8HandConfig(HandConfig):
         rig = twin_rig(ctx)
         return PacedHand(rig.hand, ctx.cfg.service.sim_motion_delay_s)
 
-    def default_grid(self) -> dict[str, Any] | None:
-        from activetouch.models.bh8 import GRID_DEFAULTS
+    def default_settings(self) -> dict[str, dict[str, Any]] | None:
+        from activetouch.models.bh8 import DEFAULT_SETTINGS
 
-        return dict(GRID_DEFAULTS)
+        return {k: dict(v) for k, v in DEFAULT_SETTINGS.items()}
 
 
 @dataclass

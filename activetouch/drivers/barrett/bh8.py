@@ -132,8 +132,8 @@ class BarrettBH8Config(HandConfig):
     def make(self, ctx: DeviceContext) -> Hand:
         return BarrettBH8Hand(self)
 
-    def default_grid(self) -> dict[str, Any] | None:
-        return dict(kinematics.GRID_DEFAULTS)
+    def default_settings(self) -> dict[str, dict[str, Any]] | None:
+        return {k: dict(v) for k, v in kinematics.DEFAULT_SETTINGS.items()}
 
 
 @dataclass
