@@ -35,7 +35,7 @@ class BH8TwinFingers:
         self,
         world: BH8World,
         hand: SimBH8Hand,
-        strain_per_newton: float = 100.0,
+        strain_per_newton: float | None = None,
         gated: bool = False,
     ) -> None:
         self.world, self.hand = world, hand
