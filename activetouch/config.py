@@ -514,7 +514,6 @@ def profile_settings(cfg: Config) -> dict[str, Any]:
     print them (and results store them) beside the profile's name."""
     rc, obs = cfg.recognition, cfg.observation
     out: dict[str, Any] = {
-        "hand.type": cfg.hand.type,
         "recognition.belief": rc.belief,
         "observation.translation_cell_m": obs.translation_cell_m,
         "grid.margin_m": cfg.grid.margin_m,
@@ -524,6 +523,7 @@ def profile_settings(cfg: Config) -> dict[str, Any]:
         out["recognition.pose_range_m"] = rc.pose_range_m
         out["recognition.pose_range_deg"] = rc.pose_range_deg
         out["recognition.pose_floor"] = rc.pose_floor
+    out["hand.type"] = cfg.hand.type
     return out
 
 
