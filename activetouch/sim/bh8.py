@@ -29,18 +29,16 @@ a cell reads its load x `pressure_per_newton` plus noise, in the driver's units 
 from __future__ import annotations
 
 import math
-import time
-from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from activetouch.config import SimConfig, WorkcellConfig
-from activetouch.interfaces import Grasp, Hand, HandState, StopLatch
+from activetouch.interfaces import Grasp
 from activetouch.models import bh8
 from activetouch.sim.faulty import FaultyReadings
-from activetouch.sim.hand import pose_keyed_rng, site_forces
+from activetouch.sim.hand import TwinHand, site_forces
 from activetouch.sim.pybullet import pb
 from activetouch.sim.world import HandContacts, HandLinks, SimWorld
 
@@ -96,7 +94,7 @@ class BH8World(SimWorld):
         return bh8.cell_positions(self._preshape, self._proximal, self._distal)
 
 
-class SimBH8Hand(Hand):
+class SimBH8Hand(TwinHand):
     """The twin's BH8 on the hand body of a `BH8World`."""
 
     def __init__(
@@ -107,22 +105,15 @@ class SimBH8Hand(Hand):
         seed: int | None = None,
     ) -> None:
         hcfg.check()
-        self.world = world
         self.hcfg = hcfg
-        self.cfg = cfg or world.cfg
-        self.seed = self.cfg.seed if seed is None else int(seed)
-        self.reseed(self.seed)
+        self._init_twin(world, cfg or world.cfg, seed, bh8.N_CELLS, hcfg.contact_threshold)
+        self.preshape_limit_rad = hcfg.spread_limit_rad
+        self.preshape_speed_rad_s = hcfg.spread_speed_rad_s
         links = world.links
         self._finger_col = {int(links.proximal[f]): (f, 0) for f in range(3)}
         self._finger_col.update({int(links.distal[f]): (f, 1) for f in range(3)})
         self._sensing_links = {int(links.distal[f]) for f in range(3)} | {-1}
-        self.stop_latch = StopLatch()
-        self.masked = np.zeros(bh8.N_CELLS, dtype=bool)
-        self.thresholds = np.full(bh8.N_CELLS, float(hcfg.contact_threshold))
         self.last_close_reasons: tuple[str, ...] = ()
-        self._robot_seconds = 0.0
-
-    # -- timing ---------------------------------------------------------------------------
 
     @property
     def motor_step(self) -> float:
@@ -135,47 +126,7 @@ class SimBH8Hand(Hand):
     def motor_limit(self) -> float:
         return self.hcfg.finger_limit_counts * 2 * math.pi / self.hcfg.cts
 
-    @property
-    def robot_seconds(self) -> float:
-        return self._robot_seconds
-
-    @property
-    def n_sensors(self) -> int:
-        return bh8.N_CELLS
-
     # -- Hand interface -------------------------------------------------------------------
-
-    def connect(self) -> None:
-        pass  # the world owns the client
-
-    def disconnect(self) -> None:
-        pass
-
-    def reseed(self, seed: int) -> None:
-        self.seed = int(seed)
-        self._stream = np.random.default_rng(self.seed)
-        self._state_rng = np.random.default_rng([self.seed, 1])
-
-    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
-        ids = np.asarray(list(sensor_ids), dtype=np.int64)
-        if ids.size and (ids.min() < 0 or ids.max() >= bh8.N_CELLS):
-            raise ValueError(f"cell ids must be 0..{bh8.N_CELLS - 1}, got {ids.tolist()}")
-        self.masked = np.zeros(bh8.N_CELLS, dtype=bool)
-        self.masked[ids] = True
-        return True
-
-    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
-        t = np.asarray(list(thresholds), dtype=np.float64)
-        if t.shape != (bh8.N_CELLS,) or not np.all(np.isfinite(t)):
-            raise ValueError(f"contact thresholds must be {bh8.N_CELLS} finite values")
-        self.thresholds = np.maximum(t, float(self.hcfg.contact_threshold))
-        return True
-
-    def stop(self) -> None:
-        self.stop_latch.set()
-
-    def clear_stop(self) -> None:
-        self.stop_latch.clear()
 
     def open(self) -> None:
         w = self.world
@@ -183,34 +134,13 @@ class SimBH8Hand(Hand):
         w.open_fingers()
         self._robot_seconds += travel / self.motor_step * self.hcfg.control_period_s
 
-    def preshape(self, angle: float) -> None:
-        self.stop_latch.check("spread")
-        a = float(angle)
-        if not (0.0 <= a <= self.hcfg.spread_limit_rad):
-            raise ValueError(f"spread {a} rad is outside 0..{self.hcfg.spread_limit_rad}")
-        w = self.world
-        self._robot_seconds += abs(a - w.preshape_angle) / self.hcfg.spread_speed_rad_s
-        w.set_hand(a, w.proximal, w.distal)
-
-    def state(self) -> HandState:
-        w = self.world
-        w.flush_contacts()
-        pressures, _ = self._sense(w.hand_contacts(), self._state_rng)
-        return HandState(
-            pressures=pressures,
-            contact=pressures > self.thresholds,
-            finger_angles=w.proximal,
-            preshape=w.preshape_angle,
-            stamp=time.monotonic(),
-        )
-
     def guarded_close(self) -> Grasp:
         """Close every finger until its pad feels contact, its strain gauge a load, or its
         limits (module notes); report the cells over threshold at the end. A `stop()` ends
         it at the next reading with `StoppedError`."""
         self.stop_latch.check("guarded close")
         h, w = self.hcfg, self.world
-        rng = self._stream if self.cfg.noise_mode == "stream" else pose_keyed_rng(w, self.seed)
+        rng = self._grasp_rng()
         live = ~self.masked
         thr = self.thresholds
         step, fine_step = self.motor_step, self.motor_step / h.substeps

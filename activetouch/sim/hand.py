@@ -137,20 +137,123 @@ class CloseResult:
     queries: int  # collision queries made
 
 
-class SimHand(Hand):
+class TwinHand(Hand):
+    """What both twin hands share (the ReFlex's `SimHand`, the BH8's `sim.bh8.SimBH8Hand`):
+    the world they sit in, their noise streams, the stop latch, the recognition's sensor mask
+    and per-sensor thresholds, the robot time, the spread / preshape move and a state read.
+    A subclass sets `preshape_limit_rad` and `preshape_speed_rad_s` and reads its sensors in
+    `_sense(contacts, rng) -> (pressures, depth)`."""
+
+    preshape_limit_rad: float
+    preshape_speed_rad_s: float
+
+    def _init_twin(
+        self, world: SimWorld, cfg: SimConfig, seed: int | None, n_sensors: int, threshold: float
+    ) -> None:
+        self.world = world
+        self.cfg = cfg
+        self._n_sensors = int(n_sensors)
+        self._threshold = float(threshold)
+        self.seed = cfg.seed if seed is None else int(seed)
+        self.reseed(self.seed)  # after the sensor count: a faulty hand draws its faults here
+        self.stop_latch = StopLatch()
+        self.masked = np.zeros(n_sensors, dtype=bool)  # `mask_sensors`: ignored sensors
+        # Per-sensor contact thresholds (`set_contact_thresholds`), never under the configured.
+        self.thresholds = np.full(n_sensors, self._threshold)
+        self._robot_seconds = 0.0
+
+    def _sense(
+        self, contacts: HandContacts, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    @property
+    def robot_seconds(self) -> float:
+        """Robot time of the hand's commands so far (the twin closes in milliseconds)."""
+        return self._robot_seconds
+
+    @property
+    def n_sensors(self) -> int:
+        return self._n_sensors
+
+    def connect(self) -> None:
+        pass  # the world owns the client
+
+    def disconnect(self) -> None:
+        pass
+
+    def reseed(self, seed: int) -> None:
+        """Restart the noise streams from `seed`."""
+        self.seed = int(seed)
+        self._stream = np.random.default_rng(self.seed)
+        self._state_rng = np.random.default_rng([self.seed, 1])
+
+    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
+        n = self._n_sensors
+        ids = np.asarray(list(sensor_ids), dtype=np.int64)
+        if ids.size and (ids.min() < 0 or ids.max() >= n):
+            raise ValueError(f"sensor ids must be 0..{n - 1}, got {ids.tolist()}")
+        self.masked = np.zeros(n, dtype=bool)
+        self.masked[ids] = True
+        return True
+
+    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
+        t = np.asarray(list(thresholds), dtype=np.float64)
+        if t.shape != (self._n_sensors,) or not np.all(np.isfinite(t)):
+            raise ValueError(f"contact thresholds must be {self._n_sensors} finite values")
+        self.thresholds = np.maximum(t, self._threshold)
+        return True
+
+    def stop(self) -> None:
+        """Halt the fingers: a running guarded close ends at its next step (it raises), and
+        closing or preshaping is refused until `clear_stop()`."""
+        self.stop_latch.set()
+
+    def clear_stop(self) -> None:
+        self.stop_latch.clear()
+
+    def preshape(self, angle: float) -> None:
+        self.stop_latch.check("preshape")
+        a = float(angle)
+        if not (0.0 <= a <= self.preshape_limit_rad):
+            raise ValueError(f"preshape {a} rad is outside 0..{self.preshape_limit_rad}")
+        w = self.world
+        self._robot_seconds += abs(a - w.preshape_angle) / self.preshape_speed_rad_s
+        w.set_hand(a, w.proximal, w.distal)
+
+    def state(self) -> HandState:
+        w = self.world
+        w.flush_contacts()
+        pressures, _ = self._sense(w.hand_contacts(), self._state_rng)
+        return HandState(
+            pressures=pressures,
+            contact=pressures > self.thresholds,
+            finger_angles=w.proximal,
+            preshape=w.preshape_angle,
+            stamp=time.monotonic(),
+        )
+
+    def _grasp_rng(self) -> np.random.Generator:
+        if self.cfg.noise_mode == "stream":
+            return self._stream
+        return pose_keyed_rng(self.world, self.seed)
+
+
+class SimHand(TwinHand):
     """The twin's ReFlex hand, on the hand body of `world`."""
 
     def __init__(self, world: SimWorld, cfg: SimConfig | None = None, seed: int | None = None):
-        self.world = world
-        self.cfg = cfg or world.cfg
+        cfg = cfg or world.cfg
+        self.cfg = cfg
         if self.cfg.noise_mode not in ("pose", "stream"):
             raise ValueError(f"noise_mode must be 'pose' or 'stream', not {self.cfg.noise_mode!r}")
         if self.cfg.substeps < 1 or self.cfg.spool_step_rad <= 0:
             raise ValueError("substeps must be >= 1 and spool_step_rad > 0")
         if self.cfg.spread_sigma_m <= 0 or self.cfg.post_contact_travel_rad < 0:
             raise ValueError("spread_sigma_m must be > 0 and post_contact_travel_rad >= 0")
-        self.seed = self.cfg.seed if seed is None else int(seed)
-        self.reseed(self.seed)
+        self._init_twin(world, cfg, seed, N_SENSORS, cfg.contact_threshold)
+        self.preshape_limit_rad = cfg.preshape_limit_rad
+        self.preshape_speed_rad_s = cfg.finger_speed_rad_s
         g = world.geometry
         self._proximal_limit = g.proximal_limit
         self._distal_limit = g.distal_limit
@@ -166,83 +269,17 @@ class SimHand(Hand):
         if self.cfg.hand_period_s <= 0 or self.cfg.finger_speed_rad_s <= 0:
             raise ValueError("hand_period_s and finger_speed_rad_s must be > 0")
         self.last_close: CloseResult | None = None
-        self.stop_latch = StopLatch()
-        self.masked = np.zeros(N_SENSORS, dtype=bool)  # `mask_sensors`: ignored sensors
-        # Per-sensor contact thresholds (`set_contact_thresholds`), never under the configured.
-        self.thresholds = np.full(N_SENSORS, float(self.cfg.contact_threshold))
-        self._robot_seconds = 0.0
-
-    @property
-    def robot_seconds(self) -> float:
-        """Robot time of the hand's commands so far (`SimConfig.hand_period_s`, ...)."""
-        return self._robot_seconds
 
     def _spool(self) -> np.ndarray:
         return self.world.proximal + self.world.distal
 
     # -- Hand interface -------------------------------------------------------------------
 
-    def connect(self) -> None:
-        pass  # the world owns the client
-
-    def disconnect(self) -> None:
-        pass
-
-    def mask_sensors(self, sensor_ids: Sequence[int]) -> bool:
-        ids = np.asarray(list(sensor_ids), dtype=np.int64)
-        if ids.size and (ids.min() < 0 or ids.max() >= N_SENSORS):
-            raise ValueError(f"sensor ids must be 0..{N_SENSORS - 1}, got {ids.tolist()}")
-        self.masked = np.zeros(N_SENSORS, dtype=bool)
-        self.masked[ids] = True
-        return True
-
-    def set_contact_thresholds(self, thresholds: Sequence[float]) -> bool:
-        t = np.asarray(list(thresholds), dtype=np.float64)
-        if t.shape != (N_SENSORS,) or not np.all(np.isfinite(t)):
-            raise ValueError(f"contact thresholds must be {N_SENSORS} finite values")
-        self.thresholds = np.maximum(t, float(self.cfg.contact_threshold))
-        return True
-
-    def reseed(self, seed: int) -> None:
-        """Restart the noise streams from `seed`."""
-        self.seed = int(seed)
-        self._stream = np.random.default_rng(self.seed)
-        self._state_rng = np.random.default_rng([self.seed, 1])
-
     def open(self) -> None:
         before = self._spool()
         self.world.open_fingers()
         travel = float(np.abs(before - self._spool()).max())
         self._robot_seconds += travel / self.cfg.finger_speed_rad_s
-
-    def stop(self) -> None:
-        """Halt the fingers: a running guarded close ends at its next spool step (it raises),
-        and closing or preshaping is refused until `clear_stop()`."""
-        self.stop_latch.set()
-
-    def clear_stop(self) -> None:
-        self.stop_latch.clear()
-
-    def preshape(self, angle: float) -> None:
-        self.stop_latch.check("preshape")
-        a = float(angle)
-        if not (0.0 <= a <= self.cfg.preshape_limit_rad):
-            raise ValueError(f"preshape {a} rad is outside 0..{self.cfg.preshape_limit_rad}")
-        w = self.world
-        self._robot_seconds += abs(a - w.preshape_angle) / self.cfg.finger_speed_rad_s
-        w.set_hand(a, w.proximal, w.distal)
-
-    def state(self) -> HandState:
-        self.world.flush_contacts()
-        pressures = self._read(self.world.hand_contacts(), self._state_rng)
-        w = self.world
-        return HandState(
-            pressures=pressures,
-            contact=pressures > self.thresholds,
-            finger_angles=w.proximal,
-            preshape=w.preshape_angle,
-            stamp=time.monotonic(),
-        )
 
     def guarded_close(self) -> Grasp:
         """Close every finger in spool steps until it senses contact, stalls or reaches its
@@ -393,14 +430,6 @@ class SimHand(Hand):
         )
 
     # -- sensing --------------------------------------------------------------------------
-
-    def _grasp_rng(self) -> np.random.Generator:
-        if self.cfg.noise_mode == "stream":
-            return self._stream
-        return pose_keyed_rng(self.world, self.seed)
-
-    def _read(self, contacts: HandContacts, rng: np.random.Generator) -> np.ndarray:
-        return self._sense(contacts, rng)[0]
 
     def _sense(
         self, contacts: HandContacts, rng: np.random.Generator
