@@ -15,10 +15,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from activetouch.calibration import store
 from activetouch.config import Config
 from activetouch.devices import DeviceContext
 from activetouch.errors import DeviceFaultError
+from activetouch.models.bh8 import CELLS_PER_PAD, PAD_NAMES
 
 OK, WARN, FAIL, SKIP = "ok", "warn", "fail", "skip"
 
@@ -288,8 +291,6 @@ BH8_INIT_FIX = (
 
 def _cells(ids: Any) -> str:
     """Cell ids with their pad: ``29 (F2 cell 5)``."""
-    from activetouch.models.bh8 import CELLS_PER_PAD, PAD_NAMES
-
     return ", ".join(
         f"{int(i)} ({PAD_NAMES[int(i) // CELLS_PER_PAD]} cell {int(i) % CELLS_PER_PAD})"
         for i in ids
@@ -302,10 +303,6 @@ def check_bh8_hand(cfg: Config, ctx: DeviceContext, seconds: float) -> list[Step
     pads at rest (no cell in contact; masked stuck cells named) and whether it is initialised
     (motion needs it). The check itself moves the hand only if it is initialised and its
     fingers are not open (it opens them to read the pads at rest)."""
-    import numpy as np
-
-    from activetouch.pipelines.hardware_check import FAIL, OK, WARN, Step, stream_rate
-
     hc = cfg.hand
     try:
         hand = hc.make(ctx)

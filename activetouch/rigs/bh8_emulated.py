@@ -22,6 +22,7 @@ from activetouch.drivers.barrett.bh8 import BarrettBH8Config, BarrettBH8Hand
 from activetouch.emulators.barrett_bh8 import BH8Emulator, BH8EmulatorConfig, Faults
 from activetouch.errors import ConfigError
 from activetouch.interfaces import Grasp, Hand
+from activetouch.rigs.gated import LiveDuringCommands
 from activetouch.sim.devices import twin_rig
 
 if TYPE_CHECKING:
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 _CHANNELS = itertools.count()
 
 
-class TwinEmulatedBH8(BarrettBH8Hand):
+class TwinEmulatedBH8(LiveDuringCommands, BarrettBH8Hand):
     """The BH8 driver, unchanged, plus the emulator it talks to and the gate that lets the
     emulator read the shared world only during this hand's commands."""
 
@@ -44,14 +45,6 @@ class TwinEmulatedBH8(BarrettBH8Hand):
     def connect(self) -> None:
         with self.fingers.live():
             super().connect()
-
-    def open(self) -> None:
-        with self.fingers.live():
-            super().open()
-
-    def preshape(self, angle: float) -> None:
-        with self.fingers.live():
-            super().preshape(angle)
 
     def guarded_close(self) -> Grasp:
         with self.fingers.live():

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 from activetouch.emulators.reflex_takktile import EmulatorConfig, Faults, TakktileEmulator
 from activetouch.interfaces import N_SENSORS, Grasp, Hand
+from activetouch.rigs.gated import LiveDuringCommands
 from activetouch.rigs.twin_fingers import TwinFingers
 from activetouch.sim.devices import twin_rig
 
@@ -51,7 +52,7 @@ def free_loopback_port() -> int:
         s.close()
 
 
-class TwinEmulatedHand(ReflexTakktileHand):
+class TwinEmulatedHand(LiveDuringCommands, ReflexTakktileHand):
     """The TakkTile driver, unchanged, plus the emulator it talks to (`emulator`) and the gate
     that lets that emulator read the shared world only during this hand's commands."""
 
@@ -60,14 +61,6 @@ class TwinEmulatedHand(ReflexTakktileHand):
     ) -> None:
         super().__init__(cfg, device=cfg.serial or cfg.type)
         self.emulator, self.fingers = emulator, fingers
-
-    def open(self) -> None:
-        with self.fingers.live():
-            super().open()
-
-    def preshape(self, angle: float) -> None:
-        with self.fingers.live():
-            super().preshape(angle)
 
     def guarded_close(self) -> Grasp:
         with self.fingers.live():

@@ -39,7 +39,6 @@ from activetouch.interfaces import Grasp
 from activetouch.models import bh8
 from activetouch.sim.faulty import FaultyReadings
 from activetouch.sim.hand import TwinHand, site_forces
-from activetouch.sim.pybullet import pb
 from activetouch.sim.world import HandContacts, HandLinks, SimWorld
 
 if TYPE_CHECKING:
@@ -63,19 +62,10 @@ class BH8World(SimWorld):
         return [[1.0], [1.0]]  # the URDF's axes carry F1's and F2's opposite turns
 
     def _index_links(self) -> HandLinks:
-        c = self.cid
-        by_joint: dict[str, int] = {}
-        by_link: dict[str, int] = {}
-        for j in range(pb.getNumJoints(self.hand, physicsClientId=c)):
-            info = pb.getJointInfo(self.hand, j, physicsClientId=c)
-            by_joint[info[1].decode()] = j
-            by_link[info[12].decode()] = j
+        by_joint, by_link, collision = self._hand_indices()
         site_link = np.full(bh8.N_CELLS, -1, dtype=np.int64)  # the palm is the base (-1)
         for f in range(3):
             site_link[24 * f : 24 * f + 24] = by_link[bh8.OUTER_LINKS[f]]
-        collision = [-1] + [
-            j for j in by_link.values() if pb.getCollisionShapeData(self.hand, j, physicsClientId=c)
-        ]
         return HandLinks(
             preshape=(by_joint[bh8.SPREAD_JOINTS[0]], by_joint[bh8.SPREAD_JOINTS[1]]),
             proximal=tuple(by_joint[n] for n in bh8.INNER_JOINTS),  # type: ignore[arg-type]

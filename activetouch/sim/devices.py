@@ -33,6 +33,7 @@ from activetouch.interfaces import (
     StopLatch,
     extents_of,
 )
+from activetouch.models.bh8 import DEFAULT_SETTINGS
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import Placement
 from activetouch.sim import PATHS
@@ -112,8 +113,6 @@ class TwinBH8HandConfig(HandConfig):
         return PacedHand(rig.hand, ctx.cfg.service.sim_motion_delay_s)
 
     def default_settings(self) -> dict[str, dict[str, Any]] | None:
-        from activetouch.models.bh8 import DEFAULT_SETTINGS
-
         return {k: dict(v) for k, v in DEFAULT_SETTINGS.items()}
 
 

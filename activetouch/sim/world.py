@@ -207,7 +207,9 @@ class SimWorld:
         """Joint values of the two preshape joints per unit of preshape (ReFlex: +-)."""
         return [[1.0], [-1.0]]
 
-    def _index_links(self) -> HandLinks:
+    def _hand_indices(self) -> tuple[dict[str, int], dict[str, int], list[int]]:
+        """The loaded hand's joint index by joint name and by child link name, and the links
+        with collision geometry (base, -1, included)."""
         c = self.cid
         by_joint: dict[str, int] = {}
         by_link: dict[str, int] = {}
@@ -215,15 +217,19 @@ class SimWorld:
             info = pb.getJointInfo(self.hand, j, physicsClientId=c)
             by_joint[info[1].decode()] = j
             by_link[info[12].decode()] = j
+        collision = [-1] + [
+            j for j in by_link.values() if pb.getCollisionShapeData(self.hand, j, physicsClientId=c)
+        ]
+        return by_joint, by_link, collision
+
+    def _index_links(self) -> HandLinks:
+        by_joint, by_link, collision = self._hand_indices()
         site_link = np.empty(N_SENSORS, dtype=np.int64)
         for f in range(N_FINGERS):
             for s in range(SENSORS_PER_FINGER):
                 links = PROXIMAL_LINKS if s < N_PROXIMAL_SENSORS else DISTAL_LINKS
                 site_link[f * SENSORS_PER_FINGER + s] = by_link[links[f]]
         site_link[N_FINGERS * SENSORS_PER_FINGER :] = by_link[PAD_LINK]
-        collision = [-1] + [
-            j for j in by_link.values() if pb.getCollisionShapeData(self.hand, j, physicsClientId=c)
-        ]
         return HandLinks(
             preshape=(by_joint[PRESHAPE_JOINTS[0]], by_joint[PRESHAPE_JOINTS[1]]),
             proximal=tuple(by_joint[n] for n in PROXIMAL_JOINTS),  # type: ignore[arg-type]

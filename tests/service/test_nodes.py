@@ -46,6 +46,7 @@ from activetouch.transport.zenoh_session import (
 )
 from tests.doubles import RecordingArm, RecordingHand
 from tests.loopback import loopback_endpoint
+from tests.waiting import wait_for
 
 ROBOT = "testbot"
 
@@ -203,10 +204,7 @@ def test_node_stopped_mid_session(remote_hand: RemoteHand, hand_node: HandNode) 
     assert time.monotonic() - t0 < remote_hand.motion_timeout
     # Once its liveliness token is known gone (it may drop after the first call failed, on
     # a loaded machine), every call fails at once, naming it gone.
-    end = time.monotonic() + 10.0
-    while remote_hand.alive is not False and time.monotonic() < end:
-        time.sleep(0.01)
-    assert remote_hand.alive is False
+    assert wait_for(lambda: remote_hand.alive is False, timeout=10.0)
     t1 = time.monotonic()
     with pytest.raises(NodeUnavailableError, match="gone"):
         remote_hand.open()

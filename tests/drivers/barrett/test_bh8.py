@@ -6,7 +6,6 @@ import itertools
 import math
 import random
 import threading
-import time
 
 import can
 import numpy as np
@@ -28,17 +27,13 @@ from activetouch.emulators.barrett_bh8 import (
     FingerObject,
 )
 from activetouch.errors import ConfigError, StoppedError
+from tests.waiting import wait_for as wait_until
 
 _n = itertools.count()
 
 
 def wait_for(cond, timeout: float = 20.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return False
+    return wait_until(cond, timeout)
 
 
 class Rig:

@@ -10,6 +10,7 @@ import can
 import pytest
 
 from activetouch.emulators.barrett_bh8 import BH8Emulator, BH8EmulatorConfig, FingerObject
+from tests.waiting import wait_for as wait_until
 
 _n = itertools.count()
 
@@ -41,12 +42,7 @@ def replies(host, want: int, timeout: float = 5.0) -> list[can.Message]:
 
 
 def wait_for(cond, timeout: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return False
+    return wait_until(cond, timeout)
 
 
 def test_asleep_answers_vers_then_wakes(rig):

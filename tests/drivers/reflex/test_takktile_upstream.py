@@ -24,6 +24,7 @@ from activetouch.emulators.reflex_takktile import (
     KinematicFingers,
     TakktileEmulator,
 )
+from tests.waiting import wait_for as wait_until
 
 from .conftest import GROUP, MOTOR_ZERO, driver_config, free_udp_port
 from .packets import state_packet
@@ -33,12 +34,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[3] / "activetouch"
 
 
 def wait_for(cond, timeout: float = 5.0) -> bool:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if cond():
-            return True
-        time.sleep(0.01)
-    return cond()
+    return wait_until(cond, timeout)
 
 
 @pytest.fixture
