@@ -250,6 +250,14 @@ class SimConfig:
     fault_dead: int = 0
     fault_stuck: int = 0
     fault_spurious: float = 0.0
+    # Calibration drift: each sensor's zero walks at a rate drawn within +-fault_sensor_drift
+    # units per grasp after the session measured it; each finger's reported angle is off by a
+    # draw within +-fault_finger_offset_rad, and its contacts with it.
+    fault_sensor_drift: float = 0.0
+    fault_finger_offset_rad: float = 0.0
+    # The object nudged by a grasp: on opening, the hand's unbalanced push slides the object
+    # by up to this far on the table (sim/nudge.py); the paper's objects were fixed.
+    nudge_max_m: float = 0.0
 
 
 # The real robot's errors the twin can add (SimConfig above; docs/benchmark.md).
@@ -260,6 +268,9 @@ SIM_ERROR_SETTINGS = (
     "fault_dead",
     "fault_stuck",
     "fault_spurious",
+    "fault_sensor_drift",
+    "fault_finger_offset_rad",
+    "nudge_max_m",
 )
 
 

@@ -56,6 +56,16 @@ LEVELS: dict[str, tuple[str, list[str]]] = {
     "dead_4": ("4 of 38 sensors dead", ["sim.fault_dead=4"]),
     "stuck_1": ("1 sensor stuck on", ["sim.fault_stuck=1"]),
     "spurious_2pct": ("2 % spurious contacts", ["sim.fault_spurious=0.02"]),
+    # Errors the paper's twin did not have: a free-standing object, calibration gone stale.
+    "nudge_1cm": ("the object nudged, up to 1 cm per grasp", ["sim.nudge_max_m=0.01"]),
+    "drift_fingers": (
+        "finger angles off by up to +-0.05 rad",
+        ["sim.fault_finger_offset_rad=0.05"],
+    ),
+    "drift_sensors": (
+        "sensor zeros drifting up to +-1 unit per grasp",
+        ["sim.fault_sensor_drift=1"],
+    ),
     "all": (
         "placement 2 cm/15 deg + noise 5 + 4 dead + 1 stuck + 2 % spurious",
         [
@@ -76,6 +86,20 @@ LEVELS: dict[str, tuple[str, list[str]]] = {
             "sim.fault_dead=4",
             "sim.fault_stuck=1",
             "sim.fault_spurious=0.02",
+        ],
+    ),
+    "all_nudge_drift": (
+        "all + nudged 1 cm + fingers +-0.05 rad + sensor drift +-1/grasp",
+        [
+            "sim.placement_error_m=0.02",
+            "sim.placement_error_deg=15",
+            "sim.fault_noise_std=5",
+            "sim.fault_dead=4",
+            "sim.fault_stuck=1",
+            "sim.fault_spurious=0.02",
+            "sim.nudge_max_m=0.01",
+            "sim.fault_finger_offset_rad=0.05",
+            "sim.fault_sensor_drift=1",
         ],
     ),
 }

@@ -29,6 +29,10 @@ SENSOR_FAULT_KEYS = {
     "stuck": "fault_stuck",
     "spurious": "fault_spurious",
 }
+CALIBRATION_DRIFT_KEYS = {
+    "fingers": "fault_finger_offset_rad",
+    "sensors": "fault_sensor_drift",
+}
 
 
 def robot_errors(sim: SimConfig) -> dict[str, float]:
@@ -36,9 +40,29 @@ def robot_errors(sim: SimConfig) -> dict[str, float]:
     return {k: getattr(sim, k) for k in SIM_ERROR_SETTINGS if getattr(sim, k)}
 
 
-def error_overrides(placement: str | None, faults: str | None) -> list[str]:
-    """`--set` overrides from eval's flags: `--placement-error M[,DEG]` (metres, degrees) and
-    `--sensor-faults noise=S,dead=N,stuck=N,spurious=P`."""
+def _key_values(flag: str, text: str, keys: dict[str, str], example: str) -> list[str]:
+    """`key=value,...` as `sim.<setting>=value` overrides; ConfigError naming `flag`."""
+    out = []
+    for item in text.split(","):
+        key, _, value = item.partition("=")
+        key = key.strip()
+        if key not in keys or not value.strip():
+            raise ConfigError(
+                f"{flag}: expected e.g. {example} (keys {', '.join(keys)}), got {item!r}"
+            )
+        out.append(f"sim.{keys[key]}={value.strip()}")
+    return out
+
+
+def error_overrides(
+    placement: str | None,
+    faults: str | None,
+    nudge: str | None = None,
+    drift: str | None = None,
+) -> list[str]:
+    """`--set` overrides from eval's flags: `--placement-error M[,DEG]` (metres, degrees),
+    `--sensor-faults noise=S,dead=N,stuck=N,spurious=P`, `--nudge M` (metres) and
+    `--calibration-drift fingers=RAD,sensors=U`."""
     out: list[str] = []
     if placement:
         parts = [p.strip() for p in placement.split(",")]
@@ -55,15 +79,21 @@ def error_overrides(placement: str | None, faults: str | None) -> list[str]:
         if len(vals) == 2:
             out.append(f"sim.placement_error_deg={vals[1]!r}")
     if faults:
-        for item in faults.split(","):
-            key, _, value = item.partition("=")
-            key = key.strip()
-            if key not in SENSOR_FAULT_KEYS or not value.strip():
-                raise ConfigError(
-                    f"--sensor-faults: expected e.g. noise=5,dead=2,stuck=1,spurious=0.02 "
-                    f"(keys {', '.join(SENSOR_FAULT_KEYS)}), got {item!r}"
-                )
-            out.append(f"sim.{SENSOR_FAULT_KEYS[key]}={value.strip()}")
+        out += _key_values(
+            "--sensor-faults", faults, SENSOR_FAULT_KEYS, "noise=5,dead=2,stuck=1,spurious=0.02"
+        )
+    if nudge:
+        try:
+            m = float(nudge)
+        except ValueError:
+            m = -1.0
+        if not (np.isfinite(m) and 0 <= m <= 0.05):
+            raise ConfigError(f"--nudge: expected METRES in 0..0.05 (e.g. 0.01), got {nudge!r}")
+        out.append(f"sim.nudge_max_m={m!r}")
+    if drift:
+        out += _key_values(
+            "--calibration-drift", drift, CALIBRATION_DRIFT_KEYS, "fingers=0.05,sensors=1"
+        )
     return out
 
 

@@ -11,12 +11,18 @@ Used by the twin to evaluate recognition under the real robot's errors (docs/ben
 - spurious: per grasp, each quiet sensor reports a false contact with this probability (a
   transient spike in the reported reading; too brief to stop a finger, so only the reported
   grasp sees it).
+- drift (calibration drift of the sensors): each sensor's zero walks away from where the
+  session measured it at the start, at a rate drawn for the run within +-drift units per
+  grasp (a barometer's zero moves with temperature), so late grasps read offset pressures.
+- finger offset (calibration drift of the fingers): each finger's angle reads off by a fixed
+  amount drawn within +-finger_offset_rad (an encoder zero that moved since calibration), so
+  the contacts it reports are where that finger would be at the angle it believes.
 
 A run's faulty sensors are drawn from its seed, so a (seed, faults) pair repeats exactly."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -33,10 +39,16 @@ class SensorFaults:
     dead: int = 0  # sensors reading zero
     stuck: int = 0  # sensors reading over threshold
     spurious: float = 0.0  # per grasp and quiet sensor, probability of a false contact
+    drift: float = 0.0  # sensor units per grasp, the largest rate a sensor's zero walks at
+    finger_offset_rad: float = 0.0  # the largest error of a finger's reported angle
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.noise_std) and self.noise_std >= 0):
             raise ValueError(f"sensor noise must be >= 0, got {self.noise_std}")
+        if not (np.isfinite(self.drift) and self.drift >= 0):
+            raise ValueError(f"sensor drift must be >= 0 units per grasp, got {self.drift}")
+        if not (np.isfinite(self.finger_offset_rad) and 0 <= self.finger_offset_rad <= 0.5):
+            raise ValueError(f"finger offset must be in 0..0.5 rad, got {self.finger_offset_rad}")
         if self.dead < 0 or self.stuck < 0 or self.dead + self.stuck > N_SENSORS:
             raise ValueError(
                 f"dead ({self.dead}) and stuck ({self.stuck}) sensors must be >= 0 and at most "
@@ -47,7 +59,14 @@ class SensorFaults:
 
     @property
     def active(self) -> bool:
-        return bool(self.noise_std > 0 or self.dead or self.stuck or self.spurious > 0)
+        return bool(
+            self.noise_std > 0
+            or self.dead
+            or self.stuck
+            or self.spurious > 0
+            or self.drift > 0
+            or self.finger_offset_rad > 0
+        )
 
 
 @dataclass(frozen=True)
@@ -56,19 +75,29 @@ class FaultySensors:
 
     dead: np.ndarray  # (k,) int
     stuck: np.ndarray  # (m,) int, disjoint from dead
+    # (n,) each sensor's zero drift, units per grasp (zeros without drift)
+    drift_rate: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # (fingers,) each finger's reported-angle error, radians (zeros without an offset)
+    finger_offset: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def draw_faulty_sensors(
-    faults: SensorFaults, seed: int, n_sensors: int = N_SENSORS
+    faults: SensorFaults, seed: int, n_sensors: int = N_SENSORS, n_fingers: int = 3
 ) -> FaultySensors:
     """The run's dead and stuck sensors, uniformly among all `n_sensors` (the ReFlex's 38,
-    the BH8's 96), from `seed`."""
+    the BH8's 96), its sensors' drift rates and its fingers' angle offsets, from `seed`."""
     if faults.dead + faults.stuck > n_sensors:
         raise ValueError(f"{faults.dead} dead and {faults.stuck} stuck of {n_sensors} sensors")
     order = np.random.default_rng([int(seed), _FAULT_TAG, 1]).permutation(n_sensors)
+    # Their own streams: adding drift to a fault set leaves its dead and stuck sensors as
+    # they were, so levels pair by seed.
+    rate = np.random.default_rng([int(seed), _FAULT_TAG, 3]).uniform(-1.0, 1.0, n_sensors)
+    off = np.random.default_rng([int(seed), _FAULT_TAG, 4]).uniform(-1.0, 1.0, n_fingers)
     return FaultySensors(
         dead=np.sort(order[: faults.dead]),
         stuck=np.sort(order[faults.dead : faults.dead + faults.stuck]),
+        drift_rate=rate * faults.drift,
+        finger_offset=off * faults.finger_offset_rad,
     )
 
 
@@ -84,12 +113,16 @@ def faulty_reading(
     threshold: float,
     rng: np.random.Generator,
     noise_scale: float = 1.0,
+    grasps_done: int = 0,
 ) -> np.ndarray:
     """(n,) pressures as the faulty sensors read them (a new array); the extra noise is
-    `faults.noise_std` x `noise_scale` (a hand in other units scales the ReFlex's)."""
+    `faults.noise_std` x `noise_scale` (a hand in other units scales the ReFlex's, and its
+    drift likewise); `grasps_done`: grasps since the session measured the zeros."""
     p = np.array(pressures, dtype=np.float64, copy=True).reshape(-1)
     if faults.noise_std > 0:
         p += rng.normal(0.0, faults.noise_std * noise_scale, len(p))
+    if faults.drift > 0 and grasps_done > 0:
+        p += sensors.drift_rate * (grasps_done * noise_scale)
     p[sensors.dead] = 0.0
     p[sensors.stuck] = STUCK_FACTOR * threshold
     return p

@@ -79,9 +79,11 @@ class BH8World(SimWorld):
         """Open every finger fully (the HI position: inner = outer = 0), spread kept."""
         self.set_hand(self._preshape, np.zeros(3), np.zeros(3))
 
-    def sensor_sites_hand(self) -> np.ndarray:
-        """(96, 3) cell positions in the hand frame at the current joint angles."""
-        return bh8.cell_positions(self._preshape, self._proximal, self._distal)
+    def sensor_sites_hand(self, proximal: np.ndarray | None = None) -> np.ndarray:
+        """(96, 3) cell positions in the hand frame at the current joint angles (or with the
+        inner joints at `proximal`)."""
+        inner = self._proximal if proximal is None else proximal
+        return bh8.cell_positions(self._preshape, inner, self._distal)
 
 
 class SimBH8Hand(TwinHand):
@@ -121,7 +123,7 @@ class SimBH8Hand(TwinHand):
     def open(self) -> None:
         w = self.world
         travel = float(np.max(bh8.motor_of(w.proximal, w.distal))) if w.proximal.size else 0.0
-        w.open_fingers()
+        self._open_fingers()
         self._robot_seconds += travel / self.motor_step * self.hcfg.control_period_s
 
     def guarded_close(self) -> Grasp:

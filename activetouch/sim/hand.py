@@ -74,6 +74,7 @@ from activetouch.models.reflex import (
     finger_sensor_positions,
     palm_site_positions,
 )
+from activetouch.sim.nudge import nudge_step, shrink_until_clear
 from activetouch.sim.world import HandContacts, SimWorld
 
 STOP_CONTACT = "contact"
@@ -233,6 +234,26 @@ class TwinHand(Hand):
             stamp=time.monotonic(),
         )
 
+    def _open_fingers(self) -> None:
+        """Open the fingers; with `sim.nudge_max_m` the grasp's unbalanced push first slides
+        the object (sim/nudge.py), never into the opened hand."""
+        w = self.world
+        step = np.zeros(2)
+        if self.cfg.nudge_max_m > 0:
+            step = nudge_step(w.object_pushes(), self.cfg.nudge_max_m)
+        w.open_fingers()
+        if step.any():
+            tol = self.cfg.wrist_penetration_tol_m
+
+            def clear(s: np.ndarray) -> bool:
+                w.shift_object(s)
+                ok = w.object_clear_of_hand(tol)
+                if not ok:
+                    w.shift_object(-s)
+                return ok
+
+            shrink_until_clear(step, clear)
+
     def _grasp_rng(self) -> np.random.Generator:
         if self.cfg.noise_mode == "stream":
             return self._stream
@@ -277,7 +298,7 @@ class SimHand(TwinHand):
 
     def open(self) -> None:
         before = self._spool()
-        self.world.open_fingers()
+        self._open_fingers()
         travel = float(np.abs(before - self._spool()).max())
         self._robot_seconds += travel / self.cfg.finger_speed_rad_s
 

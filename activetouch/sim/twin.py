@@ -54,6 +54,9 @@ def placement_error(cfg: SimConfig, seed: int) -> PlacementError:
         raise ConfigError(
             f"sim.placement_error_m and sim.placement_error_deg must be >= 0, got {m}, {deg}"
         )
+    nudge = float(cfg.nudge_max_m)
+    if not (np.isfinite(nudge) and 0 <= nudge <= 0.05):
+        raise ConfigError(f"sim.nudge_max_m must be in 0..0.05 m, got {nudge}")
     if m == 0 and deg == 0:
         return PlacementError()
     u = np.random.default_rng([int(seed), _PLACEMENT_TAG]).uniform(-1.0, 1.0, 3)
@@ -68,6 +71,8 @@ def sensor_faults(cfg: SimConfig) -> SensorFaults:
             dead=int(cfg.fault_dead),
             stuck=int(cfg.fault_stuck),
             spurious=float(cfg.fault_spurious),
+            drift=float(cfg.fault_sensor_drift),
+            finger_offset_rad=float(cfg.fault_finger_offset_rad),
         )
     except ValueError as e:
         raise ConfigError(f"sim.fault_*: {e}") from None

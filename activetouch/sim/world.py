@@ -23,6 +23,7 @@ Every world owns its client, so several worlds can live in one process; `close()
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -421,9 +422,11 @@ class SimWorld:
             self.set_wrist(before[0])
             self.set_hand(before[1], before[2], before[3])
 
-    def sensor_sites_hand(self) -> np.ndarray:
-        """(38, 3) sensor-site XYZ in the hand frame at the current joint angles."""
-        return sensor_positions(self.geometry, self._preshape, self._proximal, self._distal)
+    def sensor_sites_hand(self, proximal: np.ndarray | None = None) -> np.ndarray:
+        """(38, 3) sensor-site XYZ in the hand frame at the current joint angles (or with the
+        proximal joints at `proximal`)."""
+        prox = self._proximal if proximal is None else proximal
+        return sensor_positions(self.geometry, self._preshape, prox, self._distal)
 
     def hand_to_world(self, xyz_hand: np.ndarray) -> np.ndarray:
         pos, quat = self.wrist_world()
@@ -466,6 +469,45 @@ class SimWorld:
             depth=np.asarray(depth, dtype=np.float64),
             body=np.asarray(bodies, dtype=np.int64),
         )
+
+    def object_pushes(self) -> np.ndarray:
+        """(n, 3) how each of the hand's contacts with the object pushes it: the contact
+        normal into the object times the penetration (zero rows for none)."""
+        if self._object is None:
+            return np.zeros((0, 3))
+        c, body = self.cid, self._object.body
+        pb.performCollisionDetection(physicsClientId=c)
+        out = []
+        for cp in pb.getContactPoints(bodyA=self.hand, bodyB=body, physicsClientId=c):
+            if cp[8] >= 0.0:
+                continue
+            # Bullet's normal points from B to A: from the object to the hand here.
+            sign = -1.0 if cp[1] == self.hand else 1.0
+            out.append(sign * np.asarray(cp[7], dtype=np.float64) * -cp[8])
+        return np.asarray(out, dtype=np.float64).reshape(-1, 3)
+
+    def shift_object(self, delta_xy: np.ndarray) -> None:
+        """Slide the object on the table by `delta_xy` (world metres); the object frame stays
+        where the workcell says, as for a placement error."""
+        obj = self._object
+        if obj is None:
+            return
+        d = np.array([float(delta_xy[0]), float(delta_xy[1]), 0.0])
+        offset = obj.offset + d
+        pos, quat = pb.getBasePositionAndOrientation(obj.body, physicsClientId=self.cid)
+        pb.resetBasePositionAndOrientation(
+            obj.body, (np.asarray(pos) + d).tolist(), quat, physicsClientId=self.cid
+        )
+        self._object = dataclasses.replace(obj, offset=offset)
+
+    def object_clear_of_hand(self, tol_m: float) -> bool:
+        """No point of the hand deeper than `tol_m` in the object."""
+        if self._object is None:
+            return True
+        c = self.cid
+        pb.performCollisionDetection(physicsClientId=c)
+        pts = pb.getContactPoints(bodyA=self.hand, bodyB=self._object.body, physicsClientId=c)
+        return all(-cp[8] <= tol_m for cp in pts)
 
     def hand_min_z(self, over_table: bool = False) -> float:
         """Lowest world z of the hand's collision geometry, from the links' axis-aligned boxes

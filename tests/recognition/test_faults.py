@@ -69,3 +69,33 @@ def test_spurious_contacts_only_on_quiet_live_sensors():
 def test_out_of_range_faults_are_refused(kwargs):
     with pytest.raises(ValueError):
         SensorFaults(**kwargs)
+
+
+def test_sensor_drift_grows_with_the_grasps_done_and_keeps_the_other_faults():
+    f = SensorFaults(dead=4, stuck=1, drift=2.0)
+    s = draw_faulty_sensors(f, 3)
+    plain = draw_faulty_sensors(SensorFaults(dead=4, stuck=1), 3)
+    np.testing.assert_array_equal(s.dead, plain.dead)  # adding drift pairs with the level
+    np.testing.assert_array_equal(s.stuck, plain.stuck)
+    assert np.all(np.abs(s.drift_rate) <= 2.0) and np.ptp(s.drift_rate) > 1.0
+    p = np.full(N_SENSORS, 10.0)
+    at = [faulty_reading(p, f, s, 20.0, fault_rng(0), grasps_done=k) for k in (0, 5)]
+    live = np.setdiff1d(np.arange(N_SENSORS), np.concatenate([s.dead, s.stuck]))
+    np.testing.assert_allclose(at[0][live], 10.0)  # the zeros hold when they were measured
+    np.testing.assert_allclose(at[1][live], 10.0 + 5 * s.drift_rate[live])
+    assert np.all(at[1][s.dead] == 0.0)
+
+
+def test_finger_offsets_are_drawn_within_their_bound_per_seed():
+    f = SensorFaults(finger_offset_rad=0.05)
+    a, b = draw_faulty_sensors(f, 11), draw_faulty_sensors(f, 11)
+    np.testing.assert_array_equal(a.finger_offset, b.finger_offset)
+    assert a.finger_offset.shape == (3,) and np.all(np.abs(a.finger_offset) <= 0.05)
+    assert f.active and not SensorFaults().active
+    assert not draw_faulty_sensors(SensorFaults(), 11).finger_offset.any()
+
+
+@pytest.mark.parametrize("kwargs", [{"drift": -1.0}, {"finger_offset_rad": 0.7}])
+def test_out_of_range_drift_is_refused(kwargs):
+    with pytest.raises(ValueError):
+        SensorFaults(**kwargs)

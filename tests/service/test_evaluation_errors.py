@@ -32,6 +32,20 @@ def test_error_flags_become_settings():
         "placement_error_m": 0.01
     }
     assert error_overrides(None, None) == [] and robot_errors(load_config().sim) == {}
+    over = error_overrides(None, None, "0.01", "fingers=0.05,sensors=1")
+    assert robot_errors(load_config(None, over).sim) == {
+        "nudge_max_m": 0.01,
+        "fault_finger_offset_rad": 0.05,
+        "fault_sensor_drift": 1.0,
+    }
+
+
+@pytest.mark.parametrize(
+    ("nudge", "drift"), [("1cm", None), ("0.2", None), (None, "fingers"), (None, "zero=1")]
+)
+def test_bad_nudge_and_drift_flags_say_what_is_expected(nudge, drift):
+    with pytest.raises(ConfigError, match="expected"):
+        error_overrides(None, None, nudge, drift)
 
 
 @pytest.mark.parametrize(

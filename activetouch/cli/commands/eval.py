@@ -61,6 +61,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="tactile faults in the twin's hand: extra pressure noise (sensor units), dead and "
         "stuck sensors per run, per-grasp probability of a spurious contact (sim.fault_*)",
     )
+    p.add_argument(
+        "--nudge",
+        metavar="M",
+        default=None,
+        help="the object stands free: each grasp's unbalanced push slides it by up to M metres "
+        "(sim.nudge_max_m)",
+    )
+    p.add_argument(
+        "--calibration-drift",
+        metavar="fingers=RAD,sensors=U",
+        default=None,
+        help="calibration that no longer holds: each finger's angle reads off by up to +-RAD, "
+        "each sensor's zero walks by up to +-U units per grasp (sim.fault_finger_offset_rad, "
+        "sim.fault_sensor_drift)",
+    )
     add_executor_options(p, "recognitions")
     add_common_options(p)
     p.set_defaults(func=run)
@@ -143,7 +158,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--policies: unknown {bad}; choose from {', '.join(POLICY_NAMES)}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be >= 1, got {args.workers}")
-    overrides = [*args.overrides, *error_overrides(args.placement_error, args.sensor_faults)]
+    overrides = [
+        *args.overrides,
+        *error_overrides(
+            args.placement_error, args.sensor_faults, args.nudge, args.calibration_drift
+        ),
+    ]
     root = paths.data_dir(args.data)
     family = load_config(args.config, overrides).hand.family
     evaluate(
