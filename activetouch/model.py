@@ -289,6 +289,8 @@ def load_model(path: str | os.PathLike) -> TrainedModel:
         likelihood = GraspLikelihood.from_arrays(
             _read_checked(root, doc["likelihood"], "grasp likelihood")
         )
+    if likelihood is not None:
+        likelihood.table_dir = root  # its derived tables are kept beside it
     problems = []
     if likelihood is not None and likelihood.n_classes != len(class_names):
         problems.append(f"grasp likelihood has {likelihood.n_classes} classes")

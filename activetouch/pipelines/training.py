@@ -17,6 +17,7 @@ import numpy as np
 
 from activetouch.config import SIM_ERROR_SETTINGS, Config
 from activetouch.device_types import DEFAULT_ARM as FLOATING_ARM
+from activetouch.errors import ConfigError
 from activetouch.model import TrainedModel, train_model
 from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.collect import CollectStats, collect_object, pending_poses
@@ -24,6 +25,7 @@ from activetouch.pipelines.executors import check_executor, exit_with_parent, ra
 from activetouch.planning.grid import GridPoses, object_grids
 from activetouch.recognition.dataset import Dataset, GraspRecord
 from activetouch.session.local import placed_devices
+from activetouch.session.loop import belief_table_of
 from activetouch.storage import locked
 
 log = logging.getLogger(__name__)
@@ -377,4 +379,15 @@ def fit_and_save(dataset_path: Path, names: list[str], cfg: Config, out: Path) -
     ds = Dataset.open(dataset_path)
     model = train_model(ds, cfg, objects=names, pose_ids=grid_pose_ids(ds, names, cfg))
     model.save(out)
+    keep_planner_table(model, cfg, out)
     return model
+
+
+def keep_planner_table(model: TrainedModel, cfg: Config, out: Path) -> None:
+    """Compute the planner's grasp-likelihood table now and keep it beside the model, so no
+    later process (a daemon starting, each evaluation worker) spends its seconds on it."""
+    if model.likelihood is None:
+        return
+    model.likelihood.table_dir = out
+    with contextlib.suppress(ConfigError):  # a model that cannot give it: nothing to keep
+        belief_table_of(model, cfg.recognition)

@@ -22,13 +22,20 @@ gets the mean likelihood of those that have one (it has no say there).
 
 from __future__ import annotations
 
+import hashlib
+import io
+import logging
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 import numpy as np
 
 from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError, DataError
 from activetouch.interfaces import Grasp, Pose
+from activetouch.storage import atomic_write_bytes
+
+log = logging.getLogger(__name__)
 
 MAX_SENSOR_ID = 1023  # sensor ids the masks take (words of 64 bits, as many as needed)
 _WEIGHT_CUTOFF = 1e-6  # training poses weighing less than this are left out of the sums
@@ -122,6 +129,9 @@ class GraspLikelihood:
     _tables: dict[LikelihoodParams, np.ndarray] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
+    # Where those tables are kept between processes (the model's directory, set by
+    # `load_model`): a daemon then starts in a second, not in the table's 18 s. None: memory.
+    table_dir: Path | None = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
     def fit(cls, per_object: list[tuple[np.ndarray, list[Grasp]]]) -> GraspLikelihood:
@@ -206,21 +216,64 @@ class GraspLikelihood:
         simulated observation of grasp j tells the planner's belief (cached per `params`)."""
         cache = self._tables
         if params not in cache:
-            out = np.empty((len(self.labels), self.n_classes))
-            _, first, at = np.unique(
-                np.round(self.poses, 9), axis=0, return_index=True, return_inverse=True
-            )
-            at = at.reshape(-1)
-            order = np.argsort(at, kind="stable")
-            bounds = np.searchsorted(at[order], np.arange(len(first) + 1))
-            for u in range(len(first)):
-                rows = order[bounds[u] : bounds[u + 1]]
-                out[rows] = self._log_likelihood_many(
-                    self.masks[rows], self.closure[rows], self.poses[first[u]], params
-                )
+            out = self._stored_table(params)
+            if out is None:
+                out = self._table(params)
+                self._store_table(params, out)
             out.flags.writeable = False
             cache[params] = out
         return cache[params]
+
+    def table_file(self, params: LikelihoodParams) -> Path | None:
+        """The stored table's file for `params`: named by a digest of the widths and of every
+        training grasp, so a retrained or edited model never reads another's table."""
+        if self.table_dir is None:
+            return None
+        h = hashlib.blake2b(repr(params).encode(), digest_size=10)
+        for a in (self.poses, self.labels, self.masks, self.closure):
+            h.update(np.ascontiguousarray(a).tobytes())
+        return Path(self.table_dir) / f"likelihood_table-{h.hexdigest()}.npy"
+
+    def _stored_table(self, params: LikelihoodParams) -> np.ndarray | None:
+        path = self.table_file(params)
+        if path is None or not path.is_file():
+            return None
+        try:
+            out = np.load(path, allow_pickle=False)
+        except (OSError, ValueError) as e:
+            log.warning("%s: unreadable, computing it again (%s)", path, e)
+            return None
+        if out.shape != (len(self.labels), self.n_classes) or out.dtype != np.float64:
+            log.warning("%s: of shape %s, computing it again", path, out.shape)
+            return None
+        return out
+
+    def _store_table(self, params: LikelihoodParams, table: np.ndarray) -> None:
+        path = self.table_file(params)
+        if path is None:
+            return
+        buf = io.BytesIO()
+        np.save(buf, table, allow_pickle=False)
+        try:
+            atomic_write_bytes(path, buf.getvalue())
+        except OSError as e:  # a read-only model directory: computed again next time
+            log.info("could not keep the likelihood table in %s (%s)", path.parent, e)
+
+    def _table(self, params: LikelihoodParams) -> np.ndarray:
+        """(G, K) computed: each distinct training pose once, all its grasps together."""
+        out = np.empty((len(self.labels), self.n_classes))
+        _, first, at = np.unique(
+            np.round(self.poses, 9), axis=0, return_index=True, return_inverse=True
+        )
+        at = at.reshape(-1)
+        order = np.argsort(at, kind="stable")
+        bounds = np.searchsorted(at[order], np.arange(len(first) + 1))
+        for u in range(len(first)):
+            rows = order[bounds[u] : bounds[u + 1]]
+            out[rows] = self._log_likelihood_many(
+                self.masks[rows], self.closure[rows], self.poses[first[u]], params
+            )
+        return out
 
     def _log_likelihood_many(
         self,

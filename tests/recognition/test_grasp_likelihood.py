@@ -184,3 +184,40 @@ def test_many_poses_at_once_give_what_each_pose_alone_gives() -> None:
     one = np.stack([lik.log_likelihood(g, Pose(x[:3], x[3:]), params, ignore) for x in xs])
     assert many == pytest.approx(one, abs=1e-12)
     assert np.all(many[-1] == np.log(1.0 + params.floor))
+
+
+def test_the_planners_table_is_kept_beside_the_model_and_read_back(tmp_path, monkeypatch):
+    lik = two_classes()
+    lik.table_dir = tmp_path
+    params = LikelihoodParams()
+    first = lik.training_log_likelihoods(params)
+    kept = lik.table_file(params)
+    assert kept is not None and kept.is_file() and kept.parent == tmp_path
+    again = two_classes()
+    again.table_dir = tmp_path
+
+    def no_compute(*a):
+        raise AssertionError("computed though it was kept")
+
+    monkeypatch.setattr(GraspLikelihood, "_table", no_compute)
+    np.testing.assert_array_equal(again.training_log_likelihoods(params), first)
+    # Other widths or other grasps: another file, never the kept table.
+    assert again.table_file(LikelihoodParams(floor=1e-2)) != kept
+    other = GraspLikelihood.fit([(np.stack([pose_at(0.0)]), [grasp([1])])] * 2)
+    other.table_dir = tmp_path
+    assert other.table_file(params) != kept
+
+
+def test_a_damaged_or_unwritable_table_is_computed_again(tmp_path, caplog):
+    lik = two_classes()
+    lik.table_dir = tmp_path
+    params = LikelihoodParams()
+    want = lik.training_log_likelihoods(params)
+    lik.table_file(params).write_bytes(b"not a table")
+    fresh = two_classes()
+    fresh.table_dir = tmp_path
+    np.testing.assert_array_equal(fresh.training_log_likelihoods(params), want)
+    assert "computing it again" in caplog.text
+    nowhere = two_classes()
+    nowhere.table_dir = tmp_path / "missing" / "dir"  # cannot be written: memory only
+    np.testing.assert_array_equal(nowhere.training_log_likelihoods(params), want)
