@@ -87,7 +87,8 @@ def main() -> None:
         print(
             f"| {i + 1} | {r.get('model_loaded_s', np.nan):.2f} | "
             f"{r.get('planner_warm_up_s', np.nan):.2f} | {r.get('ready_s', np.nan):.2f} | "
-            f"{r.get('status_answered_s', np.nan):.2f}{'' if r.get('status_ok') else ' (failed)'} |",
+            f"{r.get('status_answered_s', np.nan):.2f}"
+            f"{'' if r.get('status_ok') else ' (failed)'} |",
             flush=True,
         )
     ready = [r["ready_s"] for r in rows if "ready_s" in r]
