@@ -35,6 +35,7 @@ Eq4Sampling = Literal["renormalise", "per_class"]
 Objective = Literal["final", "anytime", "info_gain"]
 MovementCost = Literal["pose", "travel_time"]
 GridLayout = Literal["shared", "per_object"]
+CellsFrom = Literal["library", "setting"]
 Sensing = Literal["tactile", "stall"]
 ZenohMode = Literal["peer", "client"]
 Ros2Attachment = Literal["gid", "legacy"]
@@ -47,7 +48,7 @@ Profile = Literal["robust", "paper"]
 # triangles, the object pose taken as known.
 PROFILES: dict[str, dict[str, Any]] = {
     "robust": {},
-    "paper": {"recognition.belief": "histogram"},
+    "paper": {"recognition.belief": "histogram", "observation.cells_from": "setting"},
 }
 
 
@@ -108,6 +109,12 @@ class ObservationConfig:
     # docs/planner.md) or a single triangle ("triangle", the paper).
     granularity: Granularity = "grasp"
     translation_cell_m: float = 0.06
+    # "library" (default): `train` makes the translation cells finer than translation_cell_m
+    # (down to 1 cm) until the pooled poses send the hand at most max_pose_shift_m from where
+    # a class was trained, so the cells follow the library's sizes (each size has its own grid
+    # poses; measured on the hard library, docs/benchmark.md). "setting": translation_cell_m.
+    cells_from: CellsFrom = "library"
+    max_pose_shift_m: float = 0.015
     quaternion_cell: float = 0.05
     triangle_cell: float = 0.08
     # How an edge p -> q is keyed: "relative" (the paper: the discretised pose of q in p's
@@ -520,14 +527,21 @@ def apply_profile(cfg: Config, name: str, devices: dict[str, dict]) -> None:
         _apply(cfg, nested, "", devices)
 
 
-def profile_settings(cfg: Config) -> dict[str, Any]:
+def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) -> dict[str, Any]:
     """The settings that distinguish the recognition method, as `train` and `recognize`
-    print them (and results store them) beside the profile's name."""
+    print them (and results store them) beside the profile's name. `model_config`: the
+    model's saved configuration, whose training settings (the pooling cell the library chose,
+    the grid) are the ones a recognition with it used."""
     rc, obs = cfg.recognition, cfg.observation
+    cell, margin = obs.translation_cell_m, cfg.grid.margin_m
+    if model_config:
+        cell = model_config.get("observation", {}).get("translation_cell_m", cell)
+        margin = model_config.get("grid", {}).get("margin_m", margin)
     out: dict[str, Any] = {
         "recognition.belief": rc.belief,
-        "observation.translation_cell_m": obs.translation_cell_m,
-        "grid.margin_m": cfg.grid.margin_m,
+        "observation.translation_cell_m": cell,
+        "observation.cells_from": obs.cells_from,
+        "grid.margin_m": margin,
         "planner.policy": cfg.planner.policy,
     }
     if rc.belief == "pose":

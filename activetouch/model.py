@@ -16,6 +16,7 @@ On disk (no pickle; `TrainedModel.save` writes a temp directory and renames it i
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import hashlib
 import json
@@ -29,7 +30,7 @@ import numpy as np
 
 from activetouch.config import Config, as_dict
 from activetouch.errors import DataError
-from activetouch.planning.observation_builder import build_observation_model
+from activetouch.planning.observation_builder import build_observation_model, cells_for_library
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.recognition.classifiers import (
     Classifier,
@@ -208,6 +209,13 @@ def train_model(
     )
     classifier = make_classifier(rc.classifier, random_state=rc.seed).fit(H, y)
     class_histograms = np.stack([spec.histogram(np.concatenate(ts)) for _, _, ts in per_object])
+    # Pooling cells that follow the library's sizes; the model keeps the cell it used.
+    all_poses = np.concatenate([p for _, p, _ in per_object]).reshape(-1, 7)
+    cell = cells_for_library(all_poses, cfg.observation)
+    if cell != cfg.observation.translation_cell_m:
+        cfg = dataclasses.replace(
+            cfg, observation=dataclasses.replace(cfg.observation, translation_cell_m=cell)
+        )
     observation = build_observation_model(per_object, spec, cfg.observation)
     return TrainedModel(
         spec=spec,

@@ -219,6 +219,7 @@ def run_job(job: Job) -> dict[str, Any]:
         "stop_reason": res.stop_reason,
         "planning_s": res.planning_s,
         "search_s": res.search_s,
+        "belief_s": res.belief_s,
         "elapsed_s": res.elapsed_s,
         # Robot time (session.py): moving, grasping, planning, their total, and the total
         # when the label was first right (None: never).

@@ -67,6 +67,30 @@ def pose_spread(poses: np.ndarray, translation_cell: float, quaternion_cell: flo
     return np.linalg.norm(poses[:, :3] - poses[first[inv.reshape(-1)], :3], axis=1)
 
 
+# The translation cells `cells_for_library` chooses among, coarsest first (metres).
+LIBRARY_CELLS_M = (0.06, 0.04, 0.03, 0.02, 0.015, 0.01)
+
+
+def cells_for_library(poses: np.ndarray, cfg: ObservationConfig) -> float:
+    """The translation cell to pool `poses` (n, 7, every class's training poses) by: with
+    `cfg.cells_from = "library"` the coarsest of `LIBRARY_CELLS_M` no coarser than
+    `cfg.translation_cell_m` whose pooled poses send the hand at most `cfg.max_pose_shift_m`
+    from a pose a class was trained at (the finest if none does); else the setting."""
+    if cfg.cells_from == "setting":
+        return float(cfg.translation_cell_m)
+    if cfg.cells_from != "library":
+        raise ConfigError(f"observation.cells_from: {cfg.cells_from!r} is not library or setting")
+    if not cfg.max_pose_shift_m > 0:
+        raise ConfigError(f"observation.max_pose_shift_m must be > 0, got {cfg.max_pose_shift_m}")
+    start = float(cfg.translation_cell_m)
+    cells = [start] + [c for c in LIBRARY_CELLS_M if c < start - 1e-12]
+    for c in cells:
+        d = pose_spread(poses, c, cfg.quaternion_cell)
+        if not len(d) or d.max() <= cfg.max_pose_shift_m:
+            return c
+    return cells[-1]
+
+
 def _cumulative_rows(m: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(ptr, outcome ids, cumulative probabilities) of a CSR count matrix without empty rows."""
     m.sum_duplicates()

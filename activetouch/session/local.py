@@ -53,9 +53,12 @@ def check_request(policy: str, max_moves: int, seed: int = 0) -> None:
         raise ConfigError(f"the move budget must be at least 1, got {max_moves}")
 
 
-def stamped(res: RecognitionResult, cfg: Config) -> RecognitionResult:
-    """`res` with the profile and method settings it ran with."""
-    res.profile, res.settings = cfg.profile, profile_settings(cfg)
+def stamped(
+    res: RecognitionResult, cfg: Config, model: TrainedModel | None = None
+) -> RecognitionResult:
+    """`res` with the profile and method settings it ran with (`model`'s training ones)."""
+    res.profile = cfg.profile
+    res.settings = profile_settings(cfg, model.config if model is not None else None)
     return res
 
 
@@ -126,7 +129,7 @@ def recognize_in_twin(
             recorder=recorder,
             library=library,
         )
-        return stamped(session.run(), cfg)
+        return stamped(session.run(), cfg, model)
 
 
 def _recognize_on_devices(
@@ -166,7 +169,7 @@ def _recognize_on_devices(
             recorder=recorder,
             library=library,
         )
-        return stamped(session.run(), cfg)
+        return stamped(session.run(), cfg, model)
 
 
 @contextlib.contextmanager

@@ -103,6 +103,7 @@ class RecognitionResult:
     counts: np.ndarray | None = None  # final histogram counts
     skipped: int = 0
     search_s: float = 0.0  # the policy's search (wall seconds)
+    belief_s: float = 0.0  # updating the belief with each grasp (wall seconds)
     elapsed_s: float = 0.0
     stop_reason: str = ""  # confident | budget | exhausted | cancelled | skips
     motion_s: float = 0.0  # the arm moving: sum of executed trajectory durations
@@ -516,7 +517,9 @@ class RecognitionSession:
         def observe(pose_id: int, grasp: Grasp, pose: Pose) -> None:
             nonlocal state, streak
             visited.append(pose_id)
+            tb = time.perf_counter()
             p, felt, cells = belief.update(grasp, pose, self._masked)
+            res.belief_s += time.perf_counter() - tb
             state = PlanningState(
                 pose=pose_id,
                 visited=np.array(visited, dtype=np.int64),

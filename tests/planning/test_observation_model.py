@@ -535,3 +535,27 @@ def test_edges_built_in_blocks_are_the_edges_built_at_once(frame: str, monkeypat
             [discretise(delta[:, :3], 0.06), discretise(delta[:, 3:], 0.05)], axis=1
         )
         np.testing.assert_allclose(whole.action_delta[whole.edge_action], want, atol=1e-12)
+
+
+def test_cells_follow_the_librarys_sizes_and_the_setting_when_asked() -> None:
+    from activetouch.config import Config
+    from activetouch.planning.grid import shared_grid
+    from activetouch.planning.observation_builder import cells_for_library
+
+    grid = Config().grid
+    one = shared_grid({"a": np.array([0.08, 0.08, 0.10])}, grid).poses
+    # Two sizes 2.2 cm apart on every ray: 6 cm cells pool each ray's two poses together.
+    two = shared_grid(
+        {"a": np.array([0.08, 0.08, 0.10]), "b": np.array([0.124, 0.124, 0.144])}, grid
+    ).poses
+    oc = ObservationConfig()
+    assert oc.cells_from == "library" and oc.translation_cell_m == 0.06
+    assert cells_for_library(one, oc) == 0.06  # one size: nothing to tell apart
+    cell = cells_for_library(two, oc)
+    assert cell < 0.06 and pose_spread(two, cell, oc.quaternion_cell).max() <= 0.015
+    coarser = [c for c in (0.06, 0.04, 0.03, 0.02, 0.015) if c > cell]
+    assert all(pose_spread(two, c, oc.quaternion_cell).max() > 0.015 for c in coarser)
+    fixed = ObservationConfig(cells_from="setting")
+    assert cells_for_library(two, fixed) == 0.06
+    with pytest.raises(ConfigError, match="max_pose_shift_m"):
+        cells_for_library(two, ObservationConfig(max_pose_shift_m=0.0))

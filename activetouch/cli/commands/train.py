@@ -153,7 +153,8 @@ def train(
         f"{obs.n_poses} poses, {obs.n_actions} actions, granularity {obs.granularity}"
     )
     if model.likelihood is not None:
-        console.print(pooling_line(model.likelihood.poses, cfg), highlight=False)
+        cell = float(model.config["observation"]["translation_cell_m"])  # as the model pooled
+        console.print(pooling_line(model.likelihood.poses, cfg, cell), highlight=False)
     console.print(f"model written to {out}")
     return out
 
@@ -163,15 +164,18 @@ def train(
 SPREAD_ADVICE_M = 0.02
 
 
-def pooling_line(poses: np.ndarray, cfg: Config) -> str:
-    """How far from its training poses the model's pooled poses send the hand."""
+def pooling_line(poses: np.ndarray, cfg: Config, cell_m: float | None = None) -> str:
+    """How far from its training poses the model's pooled poses send the hand (`cell_m`: the
+    translation cell the model pooled by, default the setting)."""
 
     oc = cfg.observation
-    d = pose_spread(poses, oc.translation_cell_m, oc.quaternion_cell)
+    cell = oc.translation_cell_m if cell_m is None else cell_m
+    d = pose_spread(poses, cell, oc.quaternion_cell)
     if not len(d):
         return "no training poses"
+    how = " chosen for the library's sizes" if oc.cells_from == "library" else ""
     line = (
-        f"pooled poses ({oc.translation_cell_m * 100:g} cm cells): a grasp is made up to "
+        f"pooled poses ({cell * 100:g} cm cells{how}): a grasp is made up to "
         f"{d.max() * 100:.1f} cm from a pose a class was trained at (90 % within "
         f"{np.percentile(d, 90) * 100:.1f} cm)"
     )
