@@ -171,6 +171,63 @@ def print_table(runs: list[dict[str, Any]], levels: list[str], policies: list[st
         )
 
 
+def headroom_rows(runs: list[dict[str, Any]], levels: list[str], budget: int) -> list[dict]:
+    """Per level, tree against greedy paired by (object, seed), and how much any planner could
+    save at all: both arms share the first (random) grasp, so a pair right after it ties
+    whatever is planned, and in the others the best a second grasp can do is be right (2)."""
+    by = {(r["level"], r["policy"], r["object"], r["seed"]): r for r in runs}
+    rows = []
+    for level in levels:
+        keys = sorted({(o, sd) for lv, p, o, sd in by if lv == level and p == "greedy"})
+        pairs = [
+            (by[(level, "tree", o, sd)], by[(level, "greedy", o, sd)])
+            for o, sd in keys
+            if (level, "tree", o, sd) in by
+        ]
+        if not pairs:
+            continue
+        t = np.array([moves_capped(a, budget) for a, _ in pairs], dtype=float)
+        g = np.array([moves_capped(b, budget) for _, b in pairs], dtype=float)
+        st = paired_stats(g - t, np.random.default_rng(0))
+        open_ = g > 1
+        rows.append(
+            {
+                "level": level,
+                "pairs": len(pairs),
+                "decided_by_first": int((~open_).sum()),
+                "greedy_open": float(g[open_].mean()) if open_.any() else float("nan"),
+                "tree_open": float(t[open_].mean()) if open_.any() else float("nan"),
+                "oracle_saving": float(np.maximum(g - 2, 0).sum() / len(pairs)),
+                "saved": st,
+            }
+        )
+    return rows
+
+
+def print_headroom(runs: list[dict[str, Any]], levels: list[str], budget: int) -> None:
+    rows = headroom_rows(runs, levels, budget)
+    if not rows:
+        return
+    print(
+        "\nWhere a planner can matter: tree against greedy (grasps to first correct saved, "
+        "paired), and the most any second grasp could save\n"
+    )
+    print(
+        "| errors | pairs | right after the shared first grasp | the others: greedy / tree "
+        "grasps | tree saves (95 % CI) | fewer / ties / more | most a planner could save |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for r in rows:
+        what = LEVELS[r["level"]][0] if r["level"] in LEVELS else r["level"]
+        st = r["saved"]
+        lo, hi = st["ci95"]
+        print(
+            f"| {what} | {r['pairs']} | {r['decided_by_first']} | {r['greedy_open']:.2f} / "
+            f"{r['tree_open']:.2f} | {st['mean']:+.2f} [{lo:+.2f}, {hi:+.2f}] | "
+            f"{st['wins']} / {st['ties']} / {st['losses']} | {r['oracle_saving']:.2f} |"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument(
@@ -201,6 +258,7 @@ def main(argv: list[str] | None = None) -> int:
             args.max_moves = doc["max_moves"]
         pols = list(dict.fromkeys(r["policy"] for r in runs))
         print_table(runs, levels, pols, args.max_moves)
+        print_headroom(runs, levels, args.max_moves)
         return 0
 
     levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
@@ -240,6 +298,7 @@ def main(argv: list[str] | None = None) -> int:
         doc = {"levels": levels, "max_moves": args.max_moves, "argv": argv or sys.argv[1:]}
         Path(args.json).write_text(json.dumps({**doc, "runs": public}) + "\n")
     print_table(public, levels, policies, args.max_moves)
+    print_headroom(public, levels, args.max_moves)
     return 0
 
 
