@@ -136,14 +136,20 @@ class TwinFloatingArmConfig(ArmConfig):
         return PacedArm(rig.arm, ctx.cfg.service.sim_motion_delay_s)
 
 
-def reset_twin(world: Any, hand: Any, spec: Any, seed: int) -> None:
+def reset_twin(world: Any, hand: Any, spec: Any, seed: int, sim: Any = None) -> None:
     """Put `spec` on the table of a used twin and bring it back to the state of a fresh one
-    (`open_twin(spec, cfg, seed)`), so a recognition repeats the in-process run exactly."""
+    (`open_twin(spec, cfg, seed)`), so a recognition repeats the in-process run exactly: with
+    `sim`'s placement error for `seed` (sim/errors.py), a faulty hand's faults redrawn."""
+    from activetouch.sim.errors import place_displaced, placement_error
+
     hand.clear_stop()
     world.set_hand(0.0, np.zeros(3), np.zeros(3))
     world.open_fingers()
     world.set_wrist(Pose(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.0, 1.0])))
-    world.place(spec)
+    if sim is None:
+        world.place(spec)
+    else:
+        place_displaced(world, spec, placement_error(sim, seed))
     hand.reseed(seed)
 
 
@@ -160,15 +166,23 @@ def make_twin_world(hand: Any, sim: Any, workcell: Any) -> Any:
 
 
 def make_twin_hand(hand: Any, world: Any, sim: Any, seed: int | None = None) -> Any:
-    """The nominal twin hand on `world` (`make_twin_world`); the BH8's with the twin's
-    default settings when `hand` is the emulated driver's."""
+    """The twin hand on `world` (`make_twin_world`), read through `sim`'s sensor faults if it
+    sets any; the BH8's with the twin's default settings when `hand` is the emulated
+    driver's."""
+    from activetouch.sim.errors import sensor_faults
+
+    faults = sensor_faults(sim)
     if getattr(hand, "family", "reflex") == "bh8":
-        from activetouch.sim.bh8 import SimBH8Hand  # deferred: loads pybullet
+        from activetouch.sim.bh8 import FaultySimBH8Hand, SimBH8Hand  # deferred: pybullet
 
         twin = hand if isinstance(hand, TwinBH8HandConfig) else TwinBH8HandConfig()
+        if faults.active:
+            return FaultySimBH8Hand(world, twin, sim, faults, seed)
         return SimBH8Hand(world, twin, sim, seed)
-    from activetouch.sim.hand import SimHand  # deferred: loads pybullet
+    from activetouch.sim.hand import FaultySimHand, SimHand  # deferred: loads pybullet
 
+    if faults.active:
+        return FaultySimHand(world, sim, faults, seed)
     return SimHand(world, sim, seed)
 
 
@@ -179,6 +193,7 @@ class TwinRig:
         # deferred: loads pybullet
         from activetouch.sim.world import SimArm
 
+        self.sim = cfg.sim
         self.world = make_twin_world(cfg.hand, cfg.sim, cfg.workcell)
         self.hand = make_twin_hand(cfg.hand, self.world, cfg.sim)
         self.arm = SimArm(self.world)
@@ -193,7 +208,7 @@ class TwinRig:
 
         spec = ObjectLibrary(self.library_root).get(obj)  # DataError names the known
         noise_seed = self.hand.cfg.seed if seed is None else seed
-        reset_twin(self.world, self.hand, spec, noise_seed)
+        reset_twin(self.world, self.hand, spec, noise_seed, self.sim)
         for hook in self.after_place:
             hook()
         log.info("object placed", extra={"object": spec.name, "seed": seed})

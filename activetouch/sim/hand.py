@@ -74,6 +74,8 @@ from activetouch.models.reflex import (
     finger_sensor_positions,
     palm_site_positions,
 )
+from activetouch.recognition.faults import SensorFaults
+from activetouch.sim.faulty import FaultyReadings
 from activetouch.sim.nudge import nudge_step, shrink_until_clear
 from activetouch.sim.world import HandContacts, SimWorld
 
@@ -495,3 +497,13 @@ class SimHand(TwinHand):
         if cfg.noise_std > 0:
             pressures = pressures + rng.normal(0.0, cfg.noise_std, N_SENSORS)
         return pressures, depth
+
+
+class FaultySimHand(FaultyReadings, SimHand):
+    """The twin's ReFlex read through faulty sensors."""
+
+    def __init__(
+        self, world: SimWorld, cfg: SimConfig, faults: SensorFaults, seed: int | None = None
+    ) -> None:
+        self.faults = faults
+        super().__init__(world, cfg, seed=seed)  # calls reseed(), which draws the faults

@@ -11,81 +11,21 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-import numpy as np
-
 from activetouch.config import SimConfig, WorkcellConfig
 from activetouch.device_types import HandConfig
-from activetouch.errors import ConfigError
 from activetouch.interfaces import Hand
 from activetouch.objects.library import ObjectSpec
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.floating import FloatingWristMotion
-from activetouch.recognition.faults import (
-    SensorFaults,
+from activetouch.sim.devices import make_twin_hand, make_twin_world, reset_twin
+from activetouch.sim.errors import (  # noqa: F401  (the errors' names, as they were here)
+    PlacementError,
+    place_displaced,
+    placement_error,
+    sensor_faults,
 )
-from activetouch.sim.bh8 import FaultySimBH8Hand
-from activetouch.sim.devices import (
-    TwinBH8HandConfig,
-    make_twin_hand,
-    make_twin_world,
-    reset_twin,
-)
-from activetouch.sim.faulty import FaultyReadings
-from activetouch.sim.hand import SimHand
+from activetouch.sim.hand import FaultySimHand  # noqa: F401
 from activetouch.sim.world import SimArm, SimWorld
-
-_PLACEMENT_TAG = 0x91ACE  # keeps the placement draw apart from the hand's noise streams
-
-
-@dataclass(frozen=True)
-class PlacementError:
-    """Where the object really stands, relative to where the workcell says it does."""
-
-    dx: float = 0.0  # metres
-    dy: float = 0.0
-    yaw_rad: float = 0.0  # about the vertical through the object's centre
-
-
-def placement_error(cfg: SimConfig, seed: int) -> PlacementError:
-    """The seed's placement error: uniform within +-`placement_error_m` in x and y and
-    +-`placement_error_deg` about z (zero without those settings)."""
-    m, deg = float(cfg.placement_error_m), float(cfg.placement_error_deg)
-    if not (np.isfinite(m) and np.isfinite(deg) and m >= 0 and deg >= 0):
-        raise ConfigError(
-            f"sim.placement_error_m and sim.placement_error_deg must be >= 0, got {m}, {deg}"
-        )
-    nudge = float(cfg.nudge_max_m)
-    if not (np.isfinite(nudge) and 0 <= nudge <= 0.05):
-        raise ConfigError(f"sim.nudge_max_m must be in 0..0.05 m, got {nudge}")
-    if m == 0 and deg == 0:
-        return PlacementError()
-    u = np.random.default_rng([int(seed), _PLACEMENT_TAG]).uniform(-1.0, 1.0, 3)
-    return PlacementError(float(u[0] * m), float(u[1] * m), float(np.radians(u[2] * deg)))
-
-
-def sensor_faults(cfg: SimConfig) -> SensorFaults:
-    """The `fault_*` settings as a `SensorFaults`; ConfigError naming them if out of range."""
-    try:
-        return SensorFaults(
-            noise_std=float(cfg.fault_noise_std),
-            dead=int(cfg.fault_dead),
-            stuck=int(cfg.fault_stuck),
-            spurious=float(cfg.fault_spurious),
-            drift=float(cfg.fault_sensor_drift),
-            finger_offset_rad=float(cfg.fault_finger_offset_rad),
-        )
-    except ValueError as e:
-        raise ConfigError(f"sim.fault_*: {e}") from None
-
-
-class FaultySimHand(FaultyReadings, SimHand):
-    """The twin's ReFlex read through faulty sensors."""
-
-    def __init__(
-        self, world: SimWorld, cfg: SimConfig, faults: SensorFaults, seed: int | None = None
-    ) -> None:
-        self.faults = faults
-        super().__init__(world, cfg, seed=seed)  # calls reseed(), which draws the faults
 
 
 @dataclass
@@ -105,10 +45,7 @@ class Twin:
         """Put `spec` on the table and bring the twin back to the state of a fresh one
         (`open_twin(spec, cfg, seed)`), so a recognition repeats an in-process run exactly."""
 
-        reset_twin(self.world, self.hand, spec, seed)  # also redraws a faulty hand's sensors
-        err = placement_error(self.cfg, seed) if self.cfg is not None else PlacementError()
-        if err != PlacementError():
-            place_displaced(self.world, spec, err)
+        reset_twin(self.world, self.hand, spec, seed, self.cfg)  # a faulty hand's faults too
 
 
 class TwinWrist(FloatingWristMotion):
@@ -145,24 +82,12 @@ def open_twin(
     anything else, or None, the ReFlex's)."""
     run_seed = cfg.seed if seed is None else int(seed)
     err = placement_error(cfg, run_seed)
-    faults = sensor_faults(cfg)
     world = make_twin_world(hand, cfg, workcell)
     try:
         if spec is not None:
             place_displaced(world, spec, err)
         arm = SimArm(world)
-        if faults.active and isinstance(hand, TwinBH8HandConfig):
-            hand_: Hand = FaultySimBH8Hand(world, hand, cfg, faults, seed)
-        elif faults.active:
-            hand_ = FaultySimHand(world, cfg, faults, seed)
-        else:
-            hand_ = make_twin_hand(hand, world, cfg, seed)
+        hand_: Hand = make_twin_hand(hand, world, cfg, seed)
         yield Twin(world, hand_, arm, TwinWrist(arm), cfg)
     finally:
         world.close()
-
-
-def place_displaced(world: SimWorld, spec: ObjectSpec, err: PlacementError) -> None:
-    """Stand `spec` on the table off its nominal placement by `err`; the object frame, which
-    the wrist (`TwinWrist`) and the support plane read, stays nominal."""
-    world.place(spec, offset_xy=(err.dx, err.dy), yaw_rad=err.yaw_rad)

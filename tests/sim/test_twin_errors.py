@@ -233,3 +233,34 @@ def test_mask_reasons_from_flags_and_rest_readings():
     }
     flat = rest_levels(np.zeros((20, 38)), np.zeros((20, 38), dtype=bool))
     assert dead_at_rest(flat).size == 0  # a hand that reads all zeros (a fake) has no dead
+
+
+def test_the_registrys_twin_rig_applies_the_errors_too(box, tmp_path):
+    """The daemon's twin and the Baxter twin are made through the device registry: a seed's
+    misplacement and the faulty sensors reach them as they reach `open_twin` (an evaluation
+    on the Baxter twin once ran nominal while it reported the errors it drew)."""
+    from activetouch.devices import make_devices
+    from activetouch.sim.devices import twin_rig
+
+    data = box.visual_mesh.parent.parent.parent  # <data>/objects/box/...
+    over = ["sim.placement_error_m=0.02", "sim.placement_error_deg=15", "sim.fault_stuck=1"]
+    cfg = load_config(None, over)
+    devices = make_devices(cfg, data)
+    try:
+        devices.ctx.place("box", 3)
+        world = twin_rig(devices.ctx).world
+        err = placement_error(cfg.sim, 3)
+        np.testing.assert_allclose(world.object.offset[:2], [err.dx, err.dy])
+        assert world.object.yaw_rad == pytest.approx(err.yaw_rad) and err.dx != 0
+        assert devices.hand.state().contact.sum() == 1  # the stuck sensor, the hand open
+        devices.ctx.place("box", 4)  # the next run's draw
+        assert not np.allclose(world.object.offset[:2], [err.dx, err.dy])
+    finally:
+        devices.close()
+    nominal = make_devices(load_config(), data)
+    try:
+        nominal.ctx.place("box", 3)
+        assert not twin_rig(nominal.ctx).world.object.offset.any()
+        assert not nominal.hand.state().contact.any()
+    finally:
+        nominal.close()
