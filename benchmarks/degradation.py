@@ -228,6 +228,42 @@ def print_headroom(runs: list[dict[str, Any]], levels: list[str], budget: int) -
         )
 
 
+def print_per_object(runs: list[dict[str, Any]], levels: list[str], policies: list[str]) -> None:
+    """Final accuracy per object (rows) for every (level, policy), the objects under 80 %
+    and the median robot seconds to the first correct label (a run never right: its whole)."""
+    cols = [(lv, p) for lv in levels for p in policies]
+    cols = [c for c in cols if any(r["level"] == c[0] and r["policy"] == c[1] for r in runs)]
+    if not cols:
+        return
+    objects = sorted({r["object"] for r in runs})
+    acc: dict[tuple[str, str, str], float] = {}
+    for lv, p in cols:
+        for o in objects:
+            rs = [r for r in runs if (r["level"], r["policy"], r["object"]) == (lv, p, o)]
+            if rs:
+                acc[(lv, p, o)] = float(np.mean([r["final_correct"] for r in rs]))
+    print("\nPer object, final accuracy\n")
+    print("| object | " + " | ".join(f"{lv}, {p}" for lv, p in cols) + " |")
+    print("|---|" + "---|" * len(cols))
+    for o in objects:
+        cells = [f"{acc[(lv, p, o)]:.0%}" if (lv, p, o) in acc else "" for lv, p in cols]
+        print(f"| {o} | " + " | ".join(cells) + " |")
+    under, robot = [], []
+    for lv, p in cols:
+        low = [o for o in objects if acc.get((lv, p, o), 1.0) < 0.8]
+        under.append(f"{len(low)}" + (f" ({', '.join(low)})" if 0 < len(low) <= 4 else ""))
+        rs = [r for r in runs if r["level"] == lv and r["policy"] == p]
+        t = [
+            r["robot_s_to_first_correct"]
+            if r.get("robot_s_to_first_correct") is not None
+            else r.get("total_s", np.nan)
+            for r in rs
+        ]
+        robot.append(f"{np.nanmedian(np.asarray(t, dtype=float)):.1f}")
+    print("| objects under 80 % | " + " | ".join(under) + " |")
+    print("| median robot s to first correct | " + " | ".join(robot) + " |")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument(
@@ -259,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
         pols = list(dict.fromkeys(r["policy"] for r in runs))
         print_table(runs, levels, pols, args.max_moves)
         print_headroom(runs, levels, args.max_moves)
+        print_per_object(runs, levels, pols)
         return 0
 
     levels = [lv.strip() for lv in args.levels.split(",") if lv.strip()]
@@ -299,6 +336,7 @@ def main(argv: list[str] | None = None) -> int:
         Path(args.json).write_text(json.dumps({**doc, "runs": public}) + "\n")
     print_table(public, levels, policies, args.max_moves)
     print_headroom(public, levels, args.max_moves)
+    print_per_object(public, levels, policies)
     return 0
 
 
