@@ -14,6 +14,7 @@ model is trained without errors (the planner and the classifier believe the nomi
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import sys
 from pathlib import Path
@@ -288,7 +289,8 @@ def main(argv: list[str] | None = None) -> int:
         runs: list[dict[str, Any]] = []
         levels: list[str] = []
         for f in args.from_json.split(","):
-            doc = json.loads(Path(f).read_text())
+            raw = Path(f).read_bytes()
+            doc = json.loads(gzip.decompress(raw) if f.endswith(".gz") else raw)
             runs += doc["runs"]
             levels += [lv for lv in doc["levels"] if lv not in levels]
             args.max_moves = doc["max_moves"]
