@@ -101,6 +101,13 @@ class RecognitionConfig:
     # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     pose_with_grasps: bool = True
     pose_grasps_weight: float = 4.0  # that term's weight against the mesh's (log scale; tuned)
+    # With the pose belief, the planner judges what a grasp will tell as if the object stood
+    # anywhere within +-plan_placement_m (x, y) / +-plan_placement_deg (yaw) of where it is
+    # believed: each training grasp's evidence is averaged over those placements
+    # (`GraspLikelihood.training_log_likelihoods(offsets=...)`), so a grasp whose feel
+    # depends on where the object is counts for less. 0: the nominal placement.
+    plan_placement_m: float = 0.0
+    plan_placement_deg: float = 0.0
 
 
 @dataclass

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError, DataError
@@ -110,6 +111,44 @@ def pose_weights_at(
     return np.exp(-d2 / (2.0 * sigma_m**2) - ang**2 / (2.0 * sigma_rad**2))
 
 
+def poses_under_offsets(pose: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(H, 7) the wrist `pose` (7: x y z qx qy qz qw, the believed object frame) relative to
+    the object as it stands off by each offset (H, 3: dx, dy, yaw about the vertical through
+    its origin): T_h^-1 * pose."""
+    off = np.asarray(offsets, dtype=np.float64).reshape(-1, 3)
+    p = np.asarray(pose, dtype=np.float64).reshape(7)
+    r_h = Rotation.from_euler("z", off[:, 2:3])
+    t = np.zeros((len(off), 3))
+    t[:, :2] = off[:, :2]
+    xyz = r_h.inv().apply(p[None, :3] - t)
+    quat = (r_h.inv() * Rotation.from_quat(p[3:])).as_quat()
+    return np.concatenate([xyz, quat], axis=1)
+
+
+def placement_offsets(range_m: float, range_deg: float) -> np.ndarray:
+    """(H, 3) the placements the planner averages a grasp's evidence over: the believed one,
+    the 8 around it at +-`range_m` in x and y, and turned +-`range_deg` (none if both 0)."""
+    if range_m <= 0 and range_deg <= 0:
+        return np.zeros((0, 3))
+    out = [(0.0, 0.0, 0.0)]
+    if range_m > 0:
+        out += [
+            (dx * range_m, dy * range_m, 0.0)
+            for dx in (-1, 0, 1)
+            for dy in (-1, 0, 1)
+            if (dx, dy) != (0, 0)
+        ]
+    if range_deg > 0:
+        out += [(0.0, 0.0, np.deg2rad(s * range_deg)) for s in (-1, 1)]
+    return np.asarray(out, dtype=np.float64)
+
+
+def _offsets_key(offsets: np.ndarray | None) -> bytes:
+    if offsets is None or len(offsets) == 0:
+        return b""
+    return np.ascontiguousarray(np.asarray(offsets, dtype=np.float64).reshape(-1, 3)).tobytes()
+
+
 def softmax_belief(log_b: np.ndarray) -> np.ndarray:
     """p(y | history) from the summed log-likelihoods (a uniform prior)."""
     z = np.exp(log_b - np.max(log_b))
@@ -126,7 +165,7 @@ class GraspLikelihood:
     closure: np.ndarray  # (G, 3) float64
     n_classes: int
     # training_log_likelihoods per kernel widths (derived, so not compared or shown)
-    _tables: dict[LikelihoodParams, np.ndarray] = field(
+    _tables: dict[tuple[LikelihoodParams, bytes], np.ndarray] = field(
         default_factory=dict, init=False, repr=False, compare=False
     )
     # Where those tables are kept between processes (the model's directory, set by
@@ -211,31 +250,40 @@ class GraspLikelihood:
         )
         return self._class_log_average(w, k, cand, params.floor)
 
-    def training_log_likelihoods(self, params: LikelihoodParams) -> np.ndarray:
+    def training_log_likelihoods(
+        self, params: LikelihoodParams, offsets: np.ndarray | None = None
+    ) -> np.ndarray:
         """(G, K) log p(g_j | y, x_j) of every training grasp j at its own pose: what a
-        simulated observation of grasp j tells the planner's belief (cached per `params`)."""
+        simulated observation of grasp j tells the planner's belief. `offsets` (H, 3: dx, dy
+        in metres, yaw in radians, the object's placement off the believed one): instead the
+        log of the mean over them of p(g_j | y, T_h^-1 x_j), what grasp j tells when the
+        object may stand at any of them. Cached per (`params`, `offsets`), in memory and
+        beside the model."""
+        off = _offsets_key(offsets)
+        key = (params, off)
         cache = self._tables
-        if params not in cache:
-            out = self._stored_table(params)
+        if key not in cache:
+            out = self._stored_table(params, off)
             if out is None:
-                out = self._table(params)
-                self._store_table(params, out)
+                out = self._table(params, off)
+                self._store_table(params, out, off)
             out.flags.writeable = False
-            cache[params] = out
-        return cache[params]
+            cache[key] = out
+        return cache[key]
 
-    def table_file(self, params: LikelihoodParams) -> Path | None:
-        """The stored table's file for `params`: named by a digest of the widths and of every
-        training grasp, so a retrained or edited model never reads another's table."""
+    def table_file(self, params: LikelihoodParams, offsets: bytes = b"") -> Path | None:
+        """The stored table's file for `params` (and placement offsets, as bytes): named by a
+        digest of them and of every training grasp, so a retrained or edited model never
+        reads another's table."""
         if self.table_dir is None:
             return None
-        h = hashlib.blake2b(repr(params).encode(), digest_size=10)
+        h = hashlib.blake2b(repr(params).encode() + offsets, digest_size=10)
         for a in (self.poses, self.labels, self.masks, self.closure):
             h.update(np.ascontiguousarray(a).tobytes())
         return Path(self.table_dir) / f"likelihood_table-{h.hexdigest()}.npy"
 
-    def _stored_table(self, params: LikelihoodParams) -> np.ndarray | None:
-        path = self.table_file(params)
+    def _stored_table(self, params: LikelihoodParams, offsets: bytes = b"") -> np.ndarray | None:
+        path = self.table_file(params, offsets)
         if path is None or not path.is_file():
             return None
         try:
@@ -248,8 +296,10 @@ class GraspLikelihood:
             return None
         return out
 
-    def _store_table(self, params: LikelihoodParams, table: np.ndarray) -> None:
-        path = self.table_file(params)
+    def _store_table(
+        self, params: LikelihoodParams, table: np.ndarray, offsets: bytes = b""
+    ) -> None:
+        path = self.table_file(params, offsets)
         if path is None:
             return
         buf = io.BytesIO()
@@ -259,8 +309,10 @@ class GraspLikelihood:
         except OSError as e:  # a read-only model directory: computed again next time
             log.info("could not keep the likelihood table in %s (%s)", path.parent, e)
 
-    def _table(self, params: LikelihoodParams) -> np.ndarray:
-        """(G, K) computed: each distinct training pose once, all its grasps together."""
+    def _table(self, params: LikelihoodParams, offsets: bytes = b"") -> np.ndarray:
+        """(G, K) computed: each distinct training pose once, all its grasps together (at
+        every placement offset, averaged in probability)."""
+        off = np.frombuffer(offsets, dtype=np.float64).reshape(-1, 3)
         out = np.empty((len(self.labels), self.n_classes))
         _, first, at = np.unique(
             np.round(self.poses, 9), axis=0, return_index=True, return_inverse=True
@@ -270,9 +322,20 @@ class GraspLikelihood:
         bounds = np.searchsorted(at[order], np.arange(len(first) + 1))
         for u in range(len(first)):
             rows = order[bounds[u] : bounds[u + 1]]
-            out[rows] = self._log_likelihood_many(
-                self.masks[rows], self.closure[rows], self.poses[first[u]], params
+            x = self.poses[first[u]]
+            if not len(off):
+                out[rows] = self._log_likelihood_many(
+                    self.masks[rows], self.closure[rows], x, params
+                )
+                continue
+            per = np.stack(
+                [
+                    self._log_likelihood_many(self.masks[rows], self.closure[rows], xh, params)
+                    for xh in poses_under_offsets(x, off)
+                ]
             )
+            m = per.max(axis=0)
+            out[rows] = m + np.log(np.mean(np.exp(per - m), axis=0))
         return out
 
     def _log_likelihood_many(

@@ -25,7 +25,6 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from activetouch.config import RecognitionConfig
 from activetouch.errors import ConfigError
@@ -37,6 +36,7 @@ from activetouch.recognition.grasp_likelihood import (
     GraspLikelihood,
     LikelihoodParams,
     finger_closure,
+    poses_under_offsets,
 )
 
 _DEFAULTS = RecognitionConfig()
@@ -292,12 +292,7 @@ def pose_estimate(log_b: np.ndarray, hyps: np.ndarray, k: int) -> PoseEstimate:
 def wrist_under_hypotheses(pose: Pose, hyps: np.ndarray) -> np.ndarray:
     """(H, 7) the wrist `pose` (nominal object frame) relative to the object as it stands
     under each hypothesis: T_h^-1 * pose (x y z qx qy qz qw)."""
-    r_h = Rotation.from_euler("z", hyps[:, 2:3])
-    t = np.zeros((len(hyps), 3))
-    t[:, :2] = hyps[:, :2]
-    xyz = r_h.inv().apply(np.asarray(pose.xyz)[None, :] - t)
-    quat = (r_h.inv() * Rotation.from_quat(pose.quat)).as_quat()
-    return np.concatenate([xyz, quat], axis=1)
+    return poses_under_offsets(np.concatenate([pose.xyz, pose.quat]), hyps)
 
 
 # Hypotheses whose best class is this far (nats) below the best pair get no training-grasp

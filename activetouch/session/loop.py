@@ -57,6 +57,7 @@ from activetouch.recognition.contacts import drop_support_contacts, hand_to_obje
 from activetouch.recognition.grasp_likelihood import (
     GraspLikelihood,
     LikelihoodParams,
+    placement_offsets,
     softmax_belief,
 )
 from activetouch.recognition.pose_belief import (
@@ -815,4 +816,7 @@ def belief_table_of(
         )
     if out_grasp.max() >= len(model_l.labels):
         raise ConfigError("the observation model and the grasp likelihood differ in grasps")
-    return BeliefTable(model_l.training_log_likelihoods(params), out_grasp)
+    offsets = None
+    if rc.belief == "pose":  # plan as if the object may stand anywhere near the belief
+        offsets = placement_offsets(rc.plan_placement_m, rc.plan_placement_deg)
+    return BeliefTable(model_l.training_log_likelihoods(params, offsets), out_grasp)

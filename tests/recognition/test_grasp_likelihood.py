@@ -221,3 +221,28 @@ def test_a_damaged_or_unwritable_table_is_computed_again(tmp_path, caplog):
     nowhere = two_classes()
     nowhere.table_dir = tmp_path / "missing" / "dir"  # cannot be written: memory only
     np.testing.assert_array_equal(nowhere.training_log_likelihoods(params), want)
+
+
+def test_the_planners_table_averaged_over_placements():
+    from activetouch.recognition.grasp_likelihood import placement_offsets, poses_under_offsets
+
+    lik = two_classes()
+    params = LikelihoodParams()
+    plain = lik.training_log_likelihoods(params)
+    np.testing.assert_allclose(
+        lik.training_log_likelihoods(params, np.zeros((1, 3))), plain
+    )  # the believed placement alone: the table
+    off = placement_offsets(0.3, 0.0)
+    assert off.shape == (9, 3) and not off[0].any() and np.abs(off).max() == 0.3
+    assert placement_offsets(0.0, 0.0).shape == (0, 3)
+    # Moved by 0.3 in x the object brings the other training pose under the hand: the
+    # full grasp at x = 0 (class 0's alone) is then also explained where both classes feel
+    # alike, so it tells class 0 from class 1 by less.
+    blurred = lik.training_log_likelihoods(params, off)
+    assert not np.allclose(blurred, plain)
+    full = 0  # class 0's grasp(FULL) at x = 0
+    assert blurred[full, 0] - blurred[full, 1] < plain[full, 0] - plain[full, 1]
+    x = pose_at(0.1)
+    moved = poses_under_offsets(x, np.array([[0.02, -0.01, 0.0], [0.0, 0.0, np.pi / 2]]))
+    np.testing.assert_allclose(moved[0, :3], x[:3] - [0.02, -0.01, 0.0])
+    np.testing.assert_allclose(moved[1, :3], [0.0, -0.1, 0.2], atol=1e-12)  # turned back
