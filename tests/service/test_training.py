@@ -93,7 +93,12 @@ def test_train_command_end_to_end_in_two_processes(tmp_path, capsys):
     assert sorted(ds.object_names()) == ["cup", "sphere"]
     out = capsys.readouterr().out
     assert "model written to" in out
-    assert "pooled poses (6 cm cells): a grasp is made up to" in out
+    # The cell the library's sizes chose is the one the model keeps and the line names.
+    cell = doc["config"]["observation"]["translation_cell_m"]
+    assert cell <= 0.06 and doc["config"]["observation"]["cells_from"] == "library"
+    assert f"pooled poses ({cell * 100:g} cm cells chosen for the library's sizes)" in " ".join(
+        out.split()
+    )
 
 
 def test_train_command_user_mistakes_are_one_line_errors(tmp_path, capsys):
