@@ -161,10 +161,9 @@ def print_table(runs: list[dict[str, Any]], levels: list[str], policies: list[st
         what = LEVELS[r["level"]][0] if r["level"] in LEVELS else r["level"]
         alo, ahi = r["accuracy_change_ci95"]
         glo, ghi = r["extra_grasps_ci95"]
-        change = (
-            "" if r["level"] == "none" else f"{r['accuracy_change']:+.1%} [{alo:+.1%}, {ahi:+.1%}]"
-        )
-        extra = "" if r["level"] == "none" else f"{r['extra_grasps']:+.2f} [{glo:+.2f}, {ghi:+.2f}]"
+        unpaired = r["level"] == "none" or np.isnan(r["accuracy_change"])
+        change = "" if unpaired else f"{r['accuracy_change']:+.1%} [{alo:+.1%}, {ahi:+.1%}]"
+        extra = "" if unpaired else f"{r['extra_grasps']:+.2f} [{glo:+.2f}, {ghi:+.2f}]"
         print(
             f"| {what} | {r['policy']} | {r['final_accuracy']:.1%} | {change} | "
             f"{r['mean_first_correct']:.2f} | {r['median_first_correct']:g} | {extra} | "
@@ -282,6 +281,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--address", default=None, help="--executor ray: the cluster")
     ap.add_argument("--json", default=None, help="write the runs here")
     ap.add_argument("--from-json", default=None, help="comma list of saved runs: table only")
+    ap.add_argument(
+        "--no-nominal",
+        action="store_true",
+        help="do not add the nominal level (no paired change against it is printed)",
+    )
     args = ap.parse_args(argv)
     policies = [p.strip() for p in args.policies.split(",") if p.strip()]
 
@@ -304,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [lv for lv in levels if lv not in LEVELS]
     if unknown:
         ap.error(f"unknown levels {unknown}; choose from {', '.join(LEVELS)}")
-    if "none" not in levels:
+    if "none" not in levels and not args.no_nominal:
         levels.insert(0, "none")  # the reference every level is paired with
     root = paths.data_dir(args.data)
     family = load_config(None, args.set).hand.family  # the hand's own default model
