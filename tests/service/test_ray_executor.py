@@ -25,10 +25,11 @@ pytestmark = pytest.mark.skipif(
     reason="the Ray executor's tests need Ray (pip install -e '.[dev]')",
 )
 
-# Record fields measured in wall-clock seconds (the policy's search, the run, and the robot
-# time totals that add planning seconds to them): they differ between any two runs.
+# Record fields measured in wall-clock seconds (the policy's search, the belief updates, the
+# run, and the robot time totals that add planning seconds to them): they differ between runs.
 WALL_CLOCK_FIELDS = (
     "planning_s",
+    "belief_s",
     "search_s",
     "elapsed_s",
     "total_s",
