@@ -44,7 +44,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from activetouch.calibration import store
-from activetouch.calibration.probing import guarded_descent
+from activetouch.calibration.probing import guarded_descent, in_contact_at_rest
 from activetouch.calibration.store import CalibrationRecord
 from activetouch.calibration.tactile import CalibrationRefusedError
 from activetouch.interfaces import Hand, Pose
@@ -505,6 +505,13 @@ def probe_object(
         z = lift_height(boxes, Rotation.from_quat(hand_pose.quat), top)
         flange.move_to(lifted(hand_pose, z).compose(to_flange))
 
+    rise(flange.pose().compose(mount))
+    ignore = in_contact_at_rest(hand)  # above the object, touching nothing
+    if len(ignore):
+        log.warning(
+            "object calibration: sensors %s read contact with nothing touching them: ignored",
+            ignore.tolist(),
+        )
     for d in approach_directions(st):
         start_hand = start_pose(shape, boxes, nominal, d, table_z, clear, st, geometry)
         start = start_hand.compose(to_flange)
@@ -522,6 +529,7 @@ def probe_object(
                 search,
                 threshold,
                 direction=d,
+                ignore=ignore,
             )
         except CalibrationRefusedError as e:
             missed.append(f"approach along {np.round(d[:2], 3).tolist()}: {e}")

@@ -85,11 +85,33 @@ class TouchResult:
     readings: int  # hand readings taken in the descent
 
 
-def _max_contact(hand: Hand) -> tuple[float, int, bool]:
+def _max_contact(hand: Hand, ignore: np.ndarray | None = None) -> tuple[float, int, bool]:
     s = hand.state()
     p = np.asarray(s.pressures, dtype=np.float64)
-    i = int(np.argmax(np.where(s.contact, p, -np.inf))) if s.contact.any() else int(np.argmax(p))
-    return float(p[i]), i, bool(s.contact.any())
+    c = np.asarray(s.contact, dtype=bool).copy()
+    if ignore is not None and len(ignore):
+        c[ignore] = False
+        p = p.copy()
+        p[ignore] = -np.inf
+    i = int(np.argmax(np.where(c, p, -np.inf))) if c.any() else int(np.argmax(p))
+    return float(p[i]), i, bool(c.any())
+
+
+def _confirmed_contact(hand: Hand, ignore: np.ndarray | None) -> tuple[float, int, bool]:
+    """`_max_contact`, a contact counted only if the next reading, at the same place, has
+    one too (a noise spike over the threshold does not last two readings; a touch does)."""
+    p, i, touching = _max_contact(hand, ignore)
+    if not touching:
+        return p, i, False
+    return _max_contact(hand, ignore)
+
+
+def in_contact_at_rest(hand: Hand, readings: int = 5) -> np.ndarray:
+    """Sensor ids in contact in most of `readings` states while nothing touches the hand
+    (stuck, or a zero that drifted): a touch procedure ignores them, as a recognition does."""
+    n = max(1, int(readings))
+    hits = np.sum([np.asarray(hand.state().contact, dtype=bool) for _ in range(n)], axis=0)
+    return np.flatnonzero(hits * 2 > n)
 
 
 def guarded_descent(
@@ -103,11 +125,13 @@ def guarded_descent(
     max_search_m: float,
     threshold: float,
     direction: np.ndarray | None = None,
+    ignore: np.ndarray | None = None,
 ) -> TouchResult:
     """From `start` (flange pose, base frame), step along `direction` (default straight
     down) until a sensor reports contact; back up one coarse step and re-approach finely,
     pressing at most `press_m` past the first contact or until `press_pressure`; then back
     off to `start`. The contact began where the pressure, linear in depth, extrapolates to 0.
+    `ignore`: sensor ids whose contact does not count (`in_contact_at_rest`).
     """
     d = np.array([0.0, 0.0, -1.0]) if direction is None else np.asarray(direction, float)
     d = d / np.linalg.norm(d)
@@ -127,7 +151,7 @@ def guarded_descent(
             flange.move_to(start)
             raise CalibrationRefusedError(f"touch blocked before any sensor felt it: {e}") from e
         n += 1
-        _, _, touching = _max_contact(hand)
+        _, _, touching = _confirmed_contact(hand, ignore)
         if touching:
             break
     # Fine re-approach from one coarse step back.
@@ -142,7 +166,7 @@ def guarded_descent(
         except UnreachableError:
             break
         n += 1
-        p, i, touching = _max_contact(hand)
+        p, i, touching = _confirmed_contact(hand, ignore)
         if touching:
             first = s if first is None else first
             sensor = i if sensor < 0 else sensor

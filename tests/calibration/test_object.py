@@ -245,14 +245,16 @@ def library(tmp_path_factory):
     return lib
 
 
-def run_in_twin(library, name: str, dx: float, dy: float, deg: float = 0.0, believed=None):
+def run_in_twin(
+    library, name: str, dx: float, dy: float, deg: float = 0.0, believed=None, faults=()
+):
     from activetouch.calibration.object_frame import calibrate_object, nominal_placement
     from activetouch.calibration.probing import FloatingFlange
     from activetouch.config import load_config
     from activetouch.sim.twin import PlacementError, open_twin, place_displaced
     from activetouch.sim.world import geometry_from_config
 
-    cfg = load_config(None, [])
+    cfg = load_config(None, list(faults))
     spec = library.get(name)
     believed_spec = library.get(believed or name)
     with open_twin(spec, cfg.sim, seed=0, workcell=cfg.workcell) as twin:
@@ -285,3 +287,14 @@ def test_twin_wrong_object_refused(library):
     """The bottle stands there, the operator says "sphere": refused, nothing returned."""
     with pytest.raises(CalibrationRefusedError):
         run_in_twin(library, "bottle", 0.01, 0.0, believed="sphere")
+
+
+@pytest.mark.slow
+def test_twin_calibration_survives_a_stuck_sensor_and_noise(library):
+    """A sensor stuck over threshold and noise +5 (two of the robot's errors the recognition
+    copes with): the stuck one is ignored, a noise spike is not a touch (it does not last two
+    readings). Before, every touch of such a hand was refused."""
+    faults = ["sim.fault_stuck=1", "sim.fault_noise_std=5"]
+    _rec, fit, touches = run_in_twin(library, "mug", 0.021, -0.017, faults=faults)
+    err = np.hypot(fit.correction_xy[0] - 0.021, fit.correction_xy[1] + 0.017)
+    assert err < 0.002 and len(touches) >= 6
