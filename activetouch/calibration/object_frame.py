@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import njit
 from scipy.optimize import least_squares
+from scipy.spatial import ConvexHull
 from scipy.spatial.transform import Rotation
 
 from activetouch.calibration import store
@@ -183,9 +184,6 @@ class ObjectShape:
 def sample_parts(parts: list[np.ndarray], spacing: float, seed: int = 0) -> np.ndarray:
     """Vertices plus area-uniform samples (about one per spacing^2) of each part's convex
     hull surface."""
-    # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
-    from scipy.spatial import ConvexHull
-
     rng = np.random.default_rng(seed)
     out = []
     for v in parts:

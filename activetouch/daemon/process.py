@@ -32,8 +32,10 @@ from activetouch.config import Config, ServiceConfig
 from activetouch.daemon.device_nodes import DeviceNodes
 from activetouch.daemon.logs import JsonFormatter, LogfmtFormatter, setup_logging
 from activetouch.daemon.recognition_service import RecognitionService
+from activetouch.daemon.ros2_face import Ros2Face
 from activetouch.daemon.supervision import LinkSettings
 from activetouch.daemon.systemd import sd_notify, watchdog_period
+from activetouch.devices import make_devices
 from activetouch.errors import ConfigError
 from activetouch.transport.keys import validate_robot
 from activetouch.transport.zenoh_session import (
@@ -205,8 +207,6 @@ class Daemon:
                     ep,
                 )
             if opts.role in ("all", "nodes"):
-                from activetouch.devices import make_devices
-
                 # Made now (a wrong setting fails here), connected as they appear: a robot
                 # PC may boot before its robot, and a device may go and come back.
                 self.devices = make_devices(opts.cfg, opts.data, connect=False)
@@ -227,8 +227,6 @@ class Daemon:
                 )
                 self.service.start(svc.node_wait_s)
                 if opts.cfg.ros2.enabled:
-                    from activetouch.daemon.ros2_face import Ros2Face
-
                     self.ros2 = Ros2Face(self.zs.session, self.service, opts.cfg)
                     self.ros2.start()
         except BaseException:

@@ -37,6 +37,7 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.errors import ActiveTouchError, DataError
+from activetouch.objects import hard
 from activetouch.objects.hard import HARD_OBJECTS
 from activetouch.objects.paper import BUILDERS, COLOURS
 from activetouch.objects.shapes import Shape, mesh_manifold
@@ -611,8 +612,6 @@ def _build_builtin(name: str, d: Path) -> None:
     if name in BUILDERS:
         shape, set_name, rgba = BUILDERS[name](), None, COLOURS[name]
     else:
-        from activetouch.objects import hard
-
         shape, set_name, rgba = hard.HARD_BUILDERS[name][1](), hard.HARD_SET, hard.colour(name)
     built = shape_to_meshes(shape)
     write_obj(d / "visual.obj", built.verts, built.faces)

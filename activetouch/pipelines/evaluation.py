@@ -21,6 +21,7 @@ from activetouch.errors import ConfigError
 from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.executors import check_executor, exit_with_parent, ray_map
 from activetouch.recognition.distances import inner_product_distance
+from activetouch.recognition.faults import draw_faulty_sensors
 
 STABLE_RUN = 3  # "3-in-a-row correct", as in the paper's real-robot table
 SENSOR_FAULT_KEYS = {
@@ -178,7 +179,7 @@ def run_job(job: Job) -> dict[str, Any]:
     )
     errors: dict[str, Any] = {}
     if robot_errors(job.cfg.sim):
-        from activetouch.recognition.faults import draw_faulty_sensors
+        # deferred: loads pybullet
         from activetouch.sim.twin import placement_error, sensor_faults
 
         # The same draws the twin made from this seed: what this run really had.

@@ -25,7 +25,13 @@ from collections.abc import Iterator
 
 from activetouch import paths
 from activetouch.config import load_config
-from activetouch.emulators.reflex_takktile import KinematicFingers
+from activetouch.emulators.reflex_sf import SFEmulator, SFEmulatorConfig, SFFaults
+from activetouch.emulators.reflex_takktile import (
+    EmulatorConfig,
+    Faults,
+    KinematicFingers,
+    TakktileEmulator,
+)
 from activetouch.errors import ActiveTouchError
 from activetouch.interfaces import Pose
 from activetouch.objects.library import ObjectLibrary
@@ -133,12 +139,6 @@ def _serve(a: argparse.Namespace, fingers: object) -> int:
     signal.signal(signal.SIGINT, lambda *_: done.set())
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     if a.hand == "reflex-takktile":
-        from activetouch.emulators.reflex_takktile import (
-            EmulatorConfig,
-            Faults,
-            TakktileEmulator,
-        )
-
         faults = Faults(
             a.loss,
             a.duplicate,
@@ -179,8 +179,6 @@ def _serve(a: argparse.Namespace, fingers: object) -> int:
                 flush=True,
             )
     else:
-        from activetouch.emulators.reflex_sf import SFEmulator, SFEmulatorConfig, SFFaults
-
         cfg_sf = SFEmulatorConfig(seed=a.seed, faults=SFFaults(mute=a.mute))
         with SFEmulator(cfg_sf, fingers) as emu_sf:
             print(

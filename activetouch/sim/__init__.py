@@ -21,6 +21,7 @@ def import_pybullet_quietly() -> None:
     devnull = os.open(os.devnull, os.O_WRONLY)
     try:
         os.dup2(devnull, 2)
+        # deferred: PyBullet (50 ms) only for the twin, and imported here with fd 2 silenced
         import pybullet  # noqa: F401
     finally:
         os.dup2(saved, 2)

@@ -52,6 +52,7 @@ from activetouch.interfaces import (
     Pose,
     StopLatch,
 )
+from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.baxter import BaxterWristMotion
 from activetouch.planning.motion.collision import CollisionScene
@@ -197,8 +198,6 @@ def library_hull(root: str, name: str, extents: tuple[float, ...]) -> np.ndarray
     try:
         # deferred: trimesh takes 0.8 s to import
         import trimesh
-
-        from activetouch.objects.library import ObjectLibrary
 
         spec = ObjectLibrary(Path(root)).get(name)
         pts = [trimesh.load(p, force="mesh").vertices for p in spec.collision_meshes]

@@ -140,6 +140,7 @@ def reset_twin(world: Any, hand: Any, spec: Any, seed: int, sim: Any = None) -> 
     """Put `spec` on the table of a used twin and bring it back to the state of a fresh one
     (`open_twin(spec, cfg, seed)`), so a recognition repeats the in-process run exactly: with
     `sim`'s placement error for `seed` (sim/errors.py), a faulty hand's faults redrawn."""
+    # deferred: loads pybullet (sim.errors imports sim.world)
     from activetouch.sim.errors import place_displaced, placement_error
 
     hand.clear_stop()
@@ -169,6 +170,7 @@ def make_twin_hand(hand: Any, world: Any, sim: Any, seed: int | None = None) -> 
     """The twin hand on `world` (`make_twin_world`), read through `sim`'s sensor faults if it
     sets any; the BH8's with the twin's default settings when `hand` is the emulated
     driver's."""
+    # deferred: loads pybullet (sim.errors imports sim.world)
     from activetouch.sim.errors import sensor_faults
 
     faults = sensor_faults(sim)

@@ -18,9 +18,11 @@ the gRPC proxy, and the browser refuses everything else.
 
 from __future__ import annotations
 
+import ctypes
 import http.server
 import os
 import queue
+import signal
 import socket
 import subprocess
 import threading
@@ -131,9 +133,6 @@ def _die_with_parent() -> Callable[[], None] | None:
     so no server is left behind listening. Everything is looked up here, in the parent: the
     child of a threaded process may only call into C."""
     try:
-        import ctypes
-        import signal
-
         prctl = ctypes.CDLL(None, use_errno=True).prctl
     except (OSError, AttributeError):
         return None

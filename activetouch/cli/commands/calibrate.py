@@ -309,6 +309,7 @@ def run_mount(cfg, root, device, args, console, recorder=None):
         if args.inject_mount:
             if not devices.simulated:
                 raise ActiveTouchError("--inject-mount is for the twin only")
+            # deferred: loads scipy
             from activetouch.calibration.sim import MountedArm
 
             arm = MountedArm(arm, _parse_mount(args.inject_mount))
@@ -395,6 +396,7 @@ def run_object(cfg, root, device, args, console, recorder=None):
             rec_m = store.load(root, "mount", f"{hand_name}-on-{cfg.arm.type}")
             if rec_m is not None:
                 mount = Pose(rec_m.values["xyz"], rec_m.values["quat_xyzw"])
+        # deferred: loads pybullet, scipy
         from activetouch.sim.world import geometry_from_config
 
         hand, flange = _recorded(recorder, devices.hand, FloatingFlange(devices.arm))

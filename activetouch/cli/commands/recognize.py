@@ -18,7 +18,7 @@ from activetouch.config import Config, load_config, profile_line
 from activetouch.errors import ActiveTouchError, ConfigError
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.policies import POLICY_NAMES
-from activetouch.recordings.writer import close_recorder
+from activetouch.recordings.writer import close_recorder, open_recorder
 from activetouch.session.local import (
     check_request,
     load_trained,
@@ -153,8 +153,8 @@ def run(args: argparse.Namespace) -> int:
     )
     recorder = None
     if args.record:
+        # deferred: loads zenoh
         from activetouch.daemon.client import new_session_id
-        from activetouch.recordings.writer import open_recorder
 
         recorder = open_recorder(
             root,

@@ -317,6 +317,7 @@ def run_replay(args: argparse.Namespace) -> int:
         )
         sys.stdout.write("\n")
     else:
+        # deferred: loads numba, scipy
         from activetouch.session.loop import display_label
 
         for i, (a, b) in enumerate(zip(out.labels, out.recorded_labels, strict=False), 1):

@@ -69,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         # optional: rerun-sdk is the [view] extra
         import rerun as rr
 
+        # optional: view.scene imports rerun at its top (and loads scipy)
         from activetouch.view.scene import SceneLogger, library_meshes
     except ImportError:
         raise ConfigError(INSTALL_HINT) from None

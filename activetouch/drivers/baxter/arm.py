@@ -294,6 +294,7 @@ class BaxterArm(Arm):
         if self._external is not None:
             self._session = self._external
         else:
+            # deferred: loads zenoh, needed only when no session is passed in
             from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 
             self._zs = ZenohSession(

@@ -7,6 +7,7 @@ its pairs are switched on and off with `CollisionScene.in_collision(q, with_obje
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import ConvexHull
 
 from activetouch.planning.motion.base import Placement
 from activetouch.planning.motion.robot import ArmModel
@@ -22,9 +23,6 @@ def object_geometry(hull_points: np.ndarray | None, extents: np.ndarray | None):
         pts = np.asarray(hull_points, dtype=np.float64).reshape(-1, 3)
         if len(pts) < 4:
             raise ValueError("an object hull needs at least 4 points")
-        # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
-        from scipy.spatial import ConvexHull
-
         verts = coal.StdVec_Vec3s()
         verts.extend([np.array(v) for v in pts[ConvexHull(pts).vertices]])
         return coal.Convex.convexHull(verts, False, "")

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from activetouch.planning.motion.robot import ArmModel
 
@@ -61,9 +62,6 @@ class SeedTable:
     def add(self, q: np.ndarray) -> None:
         # deferred: pinocchio only for arm kinematics and motion
         import pinocchio as pin
-
-        # deferred: scipy submodules load on first use (scipy.stats: 1.1 s)
-        from scipy.spatial import cKDTree
 
         q = np.atleast_2d(np.asarray(q, dtype=np.float64)).reshape(-1, self.arm.nq)
         if len(q) == 0:

@@ -110,6 +110,7 @@ def description_dirs() -> list[Path]:
             if (cand / DESCRIPTION / "urdf" / "baxter.urdf").is_file() and cand not in out:
                 out.append(cand)
     try:
+        # optional: cmeel comes with pin's PyPI wheel, not with a conda or ROS pinocchio
         import cmeel  # type: ignore[import-not-found]
 
         cand = Path(cmeel.__file__).resolve().parent.parent / "cmeel.prefix" / "share"
