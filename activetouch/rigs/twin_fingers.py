@@ -1,7 +1,7 @@
 """A `FingerModel` backed by the PyBullet twin, for the TakkTile emulator: the emulated spool
 angles pose the twin's hand (`SimWorld.set_hand`), and the pressures are the twin's tactile
 model (`SimHand.state()`, with its noise). Thin on purpose: only public SimWorld / SimHand
-calls and `reflex_urdf.coupled_joints`, so the twin can change underneath.
+calls and `models.reflex.coupled_joints`, so the twin can change underneath.
 
 Mechanics kept from the twin at packet resolution (coarser than its own guarded close, which
 re-runs a contact step in substeps): a free finger splits its spool proximal = s / (1 + k),
