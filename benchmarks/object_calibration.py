@@ -26,6 +26,7 @@ configured belief (`--set recognition.belief=...`), the faults and errors `--set
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -36,7 +37,7 @@ from activetouch import paths
 from activetouch.calibration.object_frame import calibrate_object, nominal_placement
 from activetouch.calibration.probing import FloatingFlange
 from activetouch.calibration.tactile import CalibrationRefusedError
-from activetouch.config import Config, load_config
+from activetouch.config import SIM_ERROR_SETTINGS, Config, load_config
 from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.planning.motion.floating import FloatingWristMotion
@@ -237,7 +238,10 @@ def main() -> None:
         ],
     )
     t0 = time.perf_counter()
-    model = trained(args.data, cfg, list(PAPER_SIM_OBJECTS))
+    # The model is trained on the nominal twin, as a lab trains before it meets the errors: a
+    # twin made from `cfg` would collect every grasp with the placement error and faults.
+    nominal_sim = dataclasses.replace(cfg.sim, **{k: 0 for k in SIM_ERROR_SETTINGS})
+    model = trained(args.data, dataclasses.replace(cfg, sim=nominal_sim), list(PAPER_SIM_OBJECTS))
     print(f"model: {paths.default_model(args.data)} ({time.perf_counter() - t0:.0f} s)", flush=True)
     lib = ObjectLibrary(paths.objects_dir(args.data))
     rows = []

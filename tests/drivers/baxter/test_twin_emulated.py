@@ -22,6 +22,7 @@ from activetouch.drivers.baxter.arm import BaxterArmConfig
 from activetouch.errors import ConfigError, StoppedError, UnreachableError
 from activetouch.interfaces import JointState, JointTrajectory
 from activetouch.rigs.baxter_emulated import TwinEmulatedBaxterArm, start_emulated
+from tests.waiting import wait_for
 
 ROOT = Path(__file__).resolve().parents[3]
 BAXTER_TOML = ROOT / "deploy" / "baxter-twin.toml"
@@ -109,8 +110,9 @@ def test_the_twin_follows_the_emulated_joints_only_during_a_motion(emulated) -> 
     # After the motion the arm holds, and all three agree on where it is.
     assert arm.emulator.holding("left")
     np.testing.assert_allclose(twin.q, arm.emulator.positions("left"), atol=1e-12)
-    measured = arm.joint_state().position
-    np.testing.assert_allclose(measured, twin.q, atol=1e-9)
+    # (the driver's stream may be a sample behind on a loaded machine)
+    wait_for(lambda: np.allclose(arm.joint_state().position, twin.q, atol=1e-9), timeout=30.0)
+    np.testing.assert_allclose(arm.joint_state().position, twin.q, atol=1e-9)
     assert abs(twin.q[2] - (READY[2] + 0.2)) < 1e-3
     # Between motions the twin is not touched (the hand grasps in that world then).
     n = twin.executed
@@ -148,12 +150,7 @@ def test_a_stop_from_outside_stays_a_latched_stop(emulated) -> None:
     arm.execute(ramp(arm.joint_state().position, 2, -0.05, 0.5))
     # The arm's last joint state may be one sample behind the twin's settling on a loaded
     # machine: wait for the stream to catch up, then they agree exactly.
-    deadline = time.monotonic() + 30.0
-    while (
-        not np.allclose(arm.joint_state().position, twin.q, atol=1e-9)
-        and time.monotonic() < deadline
-    ):
-        time.sleep(0.01)
+    wait_for(lambda: np.allclose(arm.joint_state().position, twin.q, atol=1e-9), timeout=30.0)
     np.testing.assert_allclose(arm.joint_state().position, twin.q, atol=1e-9)
 
 
@@ -208,8 +205,14 @@ def test_recognition_on_the_driver_against_the_twin_backed_emulator(devices, sma
     assert arm.emulator.malformed == 0
     # Driver, emulator and twin agree on where the arm is; the world's hand is there.
     twin = arm.twin
-    q = arm.joint_state().position
     np.testing.assert_allclose(arm.emulator.positions("left"), twin.joint_state().position)
+    # The driver's joint states come through Zenoh: on a loaded machine the last may be a
+    # sample behind the twin's settling (seen 1 in 5 stressed runs); wait for it to catch up.
+    wait_for(
+        lambda: np.allclose(arm.joint_state().position, twin.joint_state().position, atol=1e-9),
+        timeout=30.0,
+    )
+    q = arm.joint_state().position
     np.testing.assert_allclose(q, twin.joint_state().position, atol=1e-9)
     at = placement.to_object(hand_pose(twin.model, twin.model.model.createData(), q))
     assert np.linalg.norm(twin.world.wrist_pose.xyz - at.xyz) < 1e-6
