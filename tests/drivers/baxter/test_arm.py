@@ -23,6 +23,7 @@ from activetouch.interfaces import JointTrajectory
 from activetouch.transport.zenoh_session import ZenohSession, ZenohSettings
 from tests.drivers.baxter import handbuilt as hb
 from tests.loopback import loopback_endpoint
+from tests.waiting import wait_for
 
 LEFT = ros1.joint_names("left")
 
@@ -121,7 +122,8 @@ def test_names_are_reordered(robot: BaxterEmulator, arm: BaxterArm) -> None:
 
 def test_disabled_and_enable(robot: BaxterEmulator, arm: BaxterArm) -> None:
     robot.disable()
-    time.sleep(0.05)
+    # the state reached the driver
+    wait_for(lambda: (st := arm.robot_state()) is not None and not st.enabled, timeout=30.0)
     q0 = arm.joint_state().position
     with pytest.raises(StoppedError, match="disabled"):
         arm.execute(ramp(q0, {0: 0.1}, 0.5))
@@ -138,7 +140,7 @@ def test_lagging_joint_aborts_with_its_name(robot: BaxterEmulator, arm: BaxterAr
     with pytest.raises(TrackingError, match="left_e1"):
         arm.execute(ramp(q0, {3: 1.0}, 1.5))
     # the driver commanded a hold at the measured position on the way out
-    time.sleep(0.1)  # let the last command arrive
+    wait_for(lambda: commands_settle(robot), timeout=30.0)  # the hold arrived (Zenoh: load)
     _, mode, names, cmd = robot.commands("left")[-1]
     assert mode == 1 and names == LEFT
     np.testing.assert_allclose(cmd, robot.positions("left"), atol=0.05)
@@ -158,7 +160,7 @@ def test_estop_mid_trajectory_stops(robot: BaxterEmulator, arm: BaxterArm) -> No
     with pytest.raises(StoppedError, match="button"):
         arm.enable()
     robot.release_estop()
-    time.sleep(0.05)
+    wait_for(lambda: arm.robot_state().estop_button != 1, timeout=30.0)  # the driver saw it
     arm.enable()
     assert arm.robot_state().enabled
 
@@ -168,7 +170,8 @@ def test_stop_from_another_thread_holds_and_latches(robot: BaxterEmulator, arm: 
     threading.Timer(0.3, arm.stop).start()
     with pytest.raises(StoppedError):
         arm.execute(ramp(q0, {0: 1.0}, 1.5))
-    time.sleep(0.1)  # let the hold arrive
+    # let the hold arrive (through Zenoh: later on a loaded machine): the commands settle
+    wait_for(lambda: commands_settle(robot), timeout=30.0)
     last = robot.commands("left")[-1][3]
     time.sleep(0.1)
     assert robot.commands("left")[-1][3] == last  # nothing is sent after the hold
@@ -180,14 +183,19 @@ def test_stop_from_another_thread_holds_and_latches(robot: BaxterEmulator, arm: 
     arm.execute(ramp(arm.joint_state().position, {0: -0.1}, 0.5))
 
 
+def commands_settle(robot: BaxterEmulator) -> bool:
+    """No new command to the left arm within 0.1 s (the stream of 100 Hz stopped)."""
+    n = len(robot.commands("left"))
+    time.sleep(0.1)
+    return len(robot.commands("left")) == n
+
+
 def test_super_stop_on_stop_asserts_the_robots_estop(robot: BaxterEmulator, endpoint: str) -> None:
     a = make_arm(endpoint, super_stop_on_stop=True)
     a.connect()
     try:
         a.stop()
-        deadline = time.monotonic() + 1.0
-        while not (a.robot_state() and a.robot_state().stopped) and time.monotonic() < deadline:
-            time.sleep(0.01)
+        wait_for(lambda: a.robot_state() and a.robot_state().stopped, timeout=30.0)
         assert a.robot_state().stopped and a.robot_state().estop_button == 2
         a.clear_stop()
         a.enable()  # reset then enable
