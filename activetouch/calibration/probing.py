@@ -14,7 +14,11 @@ from typing import Protocol
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from activetouch.calibration.tactile import CalibrationRefusedError
+from activetouch.calibration.tactile import (
+    CalibrationRefusedError,
+    read_states,
+    wait_new_states,
+)
 from activetouch.errors import UnreachableError
 from activetouch.interfaces import Arm, Hand, Pose
 from activetouch.models.reflex import DISTAL_LINKS, PROXIMAL_LINKS, collision_boxes
@@ -98,20 +102,21 @@ def _max_contact(hand: Hand, ignore: np.ndarray | None = None) -> tuple[float, i
 
 
 def _confirmed_contact(hand: Hand, ignore: np.ndarray | None) -> tuple[float, int, bool]:
-    """`_max_contact`, a contact counted only if the next reading, at the same place, has
-    one too (a noise spike over the threshold does not last two readings; a touch does)."""
+    """`_max_contact`, a contact counted only if the hand's next state has one too (a noise
+    spike over the threshold does not last two readings; a touch does)."""
     p, i, touching = _max_contact(hand, ignore)
     if not touching:
         return p, i, False
+    wait_new_states(hand, 1)  # the same packet read twice would confirm its own spike
     return _max_contact(hand, ignore)
 
 
 def in_contact_at_rest(hand: Hand, readings: int = 5) -> np.ndarray:
-    """Sensor ids in contact in most of `readings` states while nothing touches the hand
-    (stuck, or a zero that drifted): a touch procedure ignores them, as a recognition does."""
-    n = max(1, int(readings))
-    hits = np.sum([np.asarray(hand.state().contact, dtype=bool) for _ in range(n)], axis=0)
-    return np.flatnonzero(hits * 2 > n)
+    """Sensor ids in contact in most of `readings` distinct states while nothing touches the
+    hand (stuck, or a zero that drifted): a touch procedure ignores them, as a recognition
+    does (session.loop.mask_reasons)."""
+    _, contact = read_states(hand, readings)
+    return np.flatnonzero(contact.mean(axis=0) > 0.5)
 
 
 def guarded_descent(

@@ -285,6 +285,29 @@ def wait_new_states(hand: Hand, n: int, timeout_s: float = 0.5, poll_s: float = 
             seen, last = seen + 1, s
 
 
+def read_states(
+    hand: Hand, n: int, timeout_s: float = 2.0, poll_s: float = 0.002
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pressures and contact flags, (k, sensors) each, of `n` distinct hand states (new
+    stamps: a real hand streams at 40 Hz, so reading it twice at once gives one packet twice);
+    a hand that streams slower than asked gives what it gave within `timeout_s`."""
+    n = max(1, int(n))
+    pressures, contact = [], []
+    last = None
+    deadline = time.monotonic() + timeout_s
+    while len(pressures) < n:
+        st = hand.state()
+        if st.stamp != last:
+            last = st.stamp
+            pressures.append(np.asarray(st.pressures, dtype=np.float64))
+            contact.append(np.asarray(st.contact, dtype=bool))
+        elif time.monotonic() > deadline:
+            break
+        else:
+            time.sleep(poll_s)
+    return np.array(pressures), np.array(contact)
+
+
 def calibrate_tactile(
     hand: Hand,
     device: str,

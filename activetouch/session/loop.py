@@ -38,6 +38,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from activetouch.calibration.tactile import read_states
 from activetouch.config import RecognitionConfig, SessionConfig
 from activetouch.device_types import DEFAULT_HAND, FAMILY_SENSORS, config_class
 from activetouch.errors import (
@@ -382,21 +383,8 @@ class RecognitionSession:
     def _read_at_rest(self) -> RestLevels:
         """`session.rest_readings` distinct hand states (new stamps), the hand open; a hand
         that streams slower than asked gives what it gave within 2 s."""
-        n = max(1, int(self.cfg.rest_readings))
-        pressures, contact = [], []
-        last = None
-        deadline = time.monotonic() + 2.0  # a stalled stream is the grasp's error, not this one's
-        while len(pressures) < n:
-            st = self.hand.state()
-            if st.stamp != last:
-                last = st.stamp
-                pressures.append(np.asarray(st.pressures, dtype=np.float64))
-                contact.append(np.asarray(st.contact, dtype=bool))
-            elif time.monotonic() > deadline:
-                break
-            else:
-                time.sleep(0.002)  # a real hand streams at 40 Hz: wait for its next reading
-        return rest_levels(np.array(pressures), np.array(contact))
+        # A stalled stream (2 s) is the grasp's error, not this one's.
+        return rest_levels(*read_states(self.hand, self.cfg.rest_readings, timeout_s=2.0))
 
     def _mask_at_rest(self) -> dict[int, str]:
         """Open the hand, away from the object, read its sensors at rest, and for this
