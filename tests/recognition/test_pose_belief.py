@@ -151,3 +151,33 @@ def test_the_session_caches_each_meshs_grid_beside_it(tmp_path):
     _class_shape.cache_clear()
     again = class_shapes(["box"], lib)[0]  # read from the file
     assert np.array_equal(again.values, first.values)
+
+
+def _cup() -> trimesh.Trimesh:
+    """An open cup: 4 cm outer radius, 3 mm wall, 5 mm floor, 10 cm tall (base at z = 0)."""
+    outer = trimesh.creation.cylinder(radius=0.04, height=0.10, sections=48)
+    inner = trimesh.creation.cylinder(radius=0.037, height=0.10, sections=48)
+    inner.apply_translation([0.0, 0.0, 0.005])  # from the floor's top up past the rim
+    cup = outer.difference(inner)
+    cup.apply_translation([0.0, 0.0, 0.05])
+    assert cup.is_watertight
+    return cup
+
+
+def test_a_cups_cavity_is_open_space():
+    # A hand reaching into a cup or bowl must not read as pressing into solid: the cavity's
+    # middle is farther from every wall than the grid's cap, where the sign is easiest to get
+    # wrong. Each point's side comes from the mesh itself (winding number), checked here
+    # against the cup's geometry.
+    cup = _cup()
+    shape = ClassShape.from_mesh(cup.vertices, cup.faces)
+    axis = np.array([[0.0, 0.0, z] for z in np.linspace(0.01, 0.12, 23)])
+    assert np.all(shape.signed_distance(axis) > 0.0)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(cup.bounds[0] - 0.02, cup.bounds[1] + 0.02, size=(3000, 3))
+    radial = np.linalg.norm(q[:, :2], axis=1)
+    solid = (radial <= 0.04) & (q[:, 2] >= 0) & (q[:, 2] <= 0.1)
+    solid &= (radial >= 0.037) | (q[:, 2] <= 0.005)
+    sd = shape.signed_distance(q)
+    clear = np.abs(sd) > 0.003  # away from the surface (a 4 mm grid read trilinearly)
+    assert np.array_equal(sd[clear] < 0, solid[clear])
