@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 from scipy.spatial.transform import Rotation
 
 from activetouch.config import RecognitionConfig
@@ -109,6 +110,38 @@ def pose_weights_at(
     d2 = np.sum((x[:, None, :3] - poses[None, :, :3]) ** 2, axis=2)
     ang = 2.0 * np.arccos(np.clip(np.abs(q @ poses[:, 3:].T), 0.0, 1.0))
     return np.exp(-d2 / (2.0 * sigma_m**2) - ang**2 / (2.0 * sigma_rad**2))
+
+
+@njit(cache=True)
+def cut_pose_weights_at(
+    poses: np.ndarray, x: np.ndarray, sigma_m: float, sigma_rad: float, cutoff: float
+) -> np.ndarray:
+    """`pose_weights_at` with the weights at or under `cutoff` set to 0, compiled: a
+    translation alone that puts a pair under the cutoff skips its rotation angle (the pose
+    belief weighs hundreds of placements against thousands of training poses per grasp)."""
+    P, n = len(x), len(poses)
+    out = np.zeros((P, n))
+    limit = -np.log(cutoff)
+    for p in range(P):
+        qn = np.sqrt(x[p, 3] ** 2 + x[p, 4] ** 2 + x[p, 5] ** 2 + x[p, 6] ** 2)
+        for j in range(n):
+            dx = x[p, 0] - poses[j, 0]
+            dy = x[p, 1] - poses[j, 1]
+            dz = x[p, 2] - poses[j, 2]
+            e = (dx * dx + dy * dy + dz * dz) / (2.0 * sigma_m**2)
+            if e >= limit:
+                continue
+            dot = (
+                x[p, 3] * poses[j, 3]
+                + x[p, 4] * poses[j, 4]
+                + x[p, 5] * poses[j, 5]
+                + x[p, 6] * poses[j, 6]
+            ) / qn
+            ang = 2.0 * np.arccos(min(max(abs(dot), 0.0), 1.0))
+            w = np.exp(-e - ang * ang / (2.0 * sigma_rad**2))
+            if w > cutoff:
+                out[p, j] = w
+    return out
 
 
 def poses_under_offsets(pose: np.ndarray, offsets: np.ndarray) -> np.ndarray:
@@ -242,8 +275,7 @@ class GraspLikelihood:
         P, K = len(x), self.n_classes
         if cand.size == 0:
             return np.full((P, K), np.log(1.0 + params.floor))
-        w = pose_weights_at(self.poses[cand], x, s_m, s_r)  # (P, cand)
-        w[w <= _WEIGHT_CUTOFF] = 0.0
+        w = cut_pose_weights_at(self.poses[cand], x, s_m, s_r, _WEIGHT_CUTOFF)  # (P, cand)
         keep = ~self._mask(ignore) if ignore is not None and len(ignore) else None
         k = self._similarity(
             cand, self._mask(grasp.sensor_ids)[None], finger_closure(grasp)[None], params, keep
@@ -378,15 +410,28 @@ class GraspLikelihood:
         y's grasps among `rows`: (P, R) weights of P poses and (n, R) kernels of n grasps, one
         of P and n being 1; (max(P, n), K). A class with no weight at a pose gets the mean of
         those that have (no say); nowhere near any: 1."""
-        onehot = np.zeros((len(rows), self.n_classes))
-        onehot[np.arange(len(rows)), self.labels[rows]] = 1.0
-        num = (w * k) @ onehot
-        den = w @ onehot  # (P, K)
+        num = self._per_class_sums(w * k, rows)
+        den = self._per_class_sums(w, rows)  # (P, K)
         has = np.broadcast_to(den > 0, num.shape)
         lik = np.where(has, num / np.where(den > 0, den, 1.0), 0.0)
         n_has = has.sum(axis=1, keepdims=True)
         mean = np.where(n_has > 0, lik.sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 1.0)
         return np.log(np.where(has, lik, mean) + floor)
+
+    def _per_class_sums(self, a: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """(n, K) the columns of `a` (n, R; column r is training grasp rows[r]) summed per
+        class: a segment sum over the classes' runs (the training grasps are stored class by
+        class), not a product with a one-hot matrix K times the size."""
+        labels = self.labels[rows]
+        out = np.zeros((a.shape[0], self.n_classes))
+        if not len(rows):
+            return out
+        if np.any(np.diff(labels) < 0):  # not class by class: put them so
+            order = np.argsort(labels, kind="stable")
+            labels, a = labels[order], a[:, order]
+        present, starts = np.unique(labels, return_index=True)
+        out[:, present] = np.add.reduceat(a, starts, axis=1)
+        return out
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {

@@ -156,26 +156,38 @@ class ClassShape:
 
     def signed_distance(self, p: np.ndarray) -> np.ndarray:
         """(M,) at points (M, 3); +cap outside the grid (farther than the cap from it)."""
-        u = (np.asarray(p, dtype=np.float64) - self.origin) / self.step
-        n = np.array(self.values.shape)
-        inside = np.all((u >= 0) & (u <= n - 1), axis=1)
-        out = np.full(len(u), DISTANCE_CAP_M)
-        if not inside.any():
-            return out
-        u = u[inside]
-        i0 = np.minimum(np.floor(u).astype(np.int64), n - 2)
-        f = u - i0
-        v = self.values
-        acc = np.zeros(len(u))
-        for dx in (0, 1):
-            wx = f[:, 0] if dx else 1.0 - f[:, 0]
-            for dy in (0, 1):
-                wy = f[:, 1] if dy else 1.0 - f[:, 1]
-                for dz in (0, 1):
-                    wz = f[:, 2] if dz else 1.0 - f[:, 2]
-                    acc += wx * wy * wz * v[i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz]
-        out[inside] = acc
-        return out
+        u = (np.asarray(p, dtype=np.float64).reshape(-1, 3) - self.origin) / self.step
+        return trilinear(self.values, u, DISTANCE_CAP_M)
+
+
+@njit(cache=True)
+def trilinear(values: np.ndarray, u: np.ndarray, outside: float) -> np.ndarray:
+    """(M,) `values` (nx, ny, nz) read trilinearly at grid coordinates `u` (M, 3); `outside`
+    where a point is off the grid. Compiled: the belief reads every class at every
+    hypothesis's points, millions of reads per grasp."""
+    nx, ny, nz = values.shape
+    out = np.empty(len(u))
+    for m in range(len(u)):
+        x, y, z = u[m, 0], u[m, 1], u[m, 2]
+        if not (0.0 <= x <= nx - 1 and 0.0 <= y <= ny - 1 and 0.0 <= z <= nz - 1):
+            out[m] = outside
+            continue
+        i, j, k = (
+            min(int(np.floor(x)), nx - 2),
+            min(int(np.floor(y)), ny - 2),
+            min(int(np.floor(z)), nz - 2),
+        )
+        fx, fy, fz = x - i, y - j, z - k
+        acc = 0.0
+        for dx in range(2):
+            wx = fx if dx else 1.0 - fx
+            for dy in range(2):
+                wy = fy if dy else 1.0 - fy
+                for dz in range(2):
+                    wz = fz if dz else 1.0 - fz
+                    acc += wx * wy * wz * values[i + dx, j + dy, k + dz]
+        out[m] = acc
+    return out
 
 
 def grid_inside(

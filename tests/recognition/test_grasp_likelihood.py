@@ -186,6 +186,28 @@ def test_many_poses_at_once_give_what_each_pose_alone_gives() -> None:
     assert np.all(many[-1] == np.log(1.0 + params.floor))
 
 
+def test_training_grasps_in_any_class_order_give_the_same_likelihood() -> None:
+    # Per-class sums run over the classes' stretches of grasps; arrays stored in another order
+    # (the classes interleaved) must give the same p(grasp | y, pose).
+    rng = np.random.default_rng(4)
+    per_class = []
+    for _ in range(3):
+        poses = np.concatenate([rng.uniform(-0.05, 0.05, (30, 3)), rng.normal(size=(30, 4))], 1)
+        gs = [grasp(sorted(rng.choice(38, 3, replace=False).tolist())) for _ in range(30)]
+        per_class.append((poses, gs))
+    lik = GraspLikelihood.fit(per_class)
+    order = rng.permutation(len(lik.labels))
+    mixed = GraspLikelihood(
+        lik.poses[order], lik.labels[order], lik.masks[order], lik.closure[order], 3
+    )
+    g = grasp([2, 7, 20], (0.9, 1.0, 1.2))
+    xs = np.concatenate([rng.uniform(-0.03, 0.03, (10, 3)), rng.normal(size=(10, 4))], axis=1)
+    params = LikelihoodParams()
+    want = lik.log_likelihood_at_poses(g, xs, params)
+    assert mixed.log_likelihood_at_poses(g, xs, params) == pytest.approx(want, abs=1e-12)
+    assert np.ptp(want) > 0  # the classes differ: the sums are not all at the floor
+
+
 def test_the_planners_table_is_kept_beside_the_model_and_read_back(tmp_path, monkeypatch):
     lik = two_classes()
     lik.table_dir = tmp_path
