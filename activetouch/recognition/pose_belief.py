@@ -47,6 +47,7 @@ from activetouch.recognition.grasp_likelihood import (
 _DEFAULTS = RecognitionConfig()
 _MAY_BE_ZERO = (
     "range_m",
+    "contact_offset_m",
     "range_deg",
     "free_margin_m",
     "prior_sigma_m",
@@ -64,6 +65,7 @@ class PoseParams:
     range_deg: float = _DEFAULTS.pose_range_deg
     step_deg: float = _DEFAULTS.pose_step_deg
     contact_sigma_m: float = _DEFAULTS.pose_contact_sigma_m
+    contact_offset_m: float = _DEFAULTS.pose_contact_offset_m
     free_margin_m: float = _DEFAULTS.pose_free_margin_m
     free_sigma_m: float = _DEFAULTS.pose_free_sigma_m
     floor: float = _DEFAULTS.pose_floor
@@ -298,20 +300,33 @@ def grasp_log_likelihood(
     contacts: np.ndarray,
     free: np.ndarray,
     p: PoseParams,
+    lifts: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(K, H) log p(grasp | class, hypothesis) from its contacts and free points."""
+    """(K, H) log p(grasp | class, hypothesis) from its contacts and free points. `lifts`
+    (K,): how far each class's frame stands above the nominal one (`class_lifts`)."""
     H, nc = len(hyps), len(contacts)
     pts = in_object_frames(np.concatenate([contacts, free]), hyps).reshape(-1, 3)
     log_floor = np.log(p.floor)
     out = np.zeros((len(shapes), H))
     for k, shape in enumerate(shapes):
-        sd = shape.signed_distance(pts).reshape(H, -1)
+        q = pts if lifts is None or lifts[k] == 0.0 else pts - np.array([0.0, 0.0, lifts[k]])
+        sd = shape.signed_distance(q).reshape(H, -1)
         if nc:
-            on = np.exp(-0.5 * (sd[:, :nc] / p.contact_sigma_m) ** 2)
+            on = np.exp(-0.5 * ((sd[:, :nc] - p.contact_offset_m) / p.contact_sigma_m) ** 2)
             out[k] += np.log(on + p.floor).sum(axis=1)
         depth = np.maximum(0.0, -sd[:, nc:] - p.free_margin_m) / p.free_sigma_m
         out[k] += np.maximum(-0.5 * depth**2, log_floor).sum(axis=1)
     return out
+
+
+def class_lifts(shapes: list[ClassShape], support_z: float | None) -> np.ndarray:
+    """(K,) the height of each class's frame above the nominal object frame when the class
+    stands on the table at `support_z` (the table plane in the nominal frame): its mesh's
+    lowest point on the plane. None (no table known): zeros."""
+    if support_z is None:
+        return np.zeros(len(shapes))
+    bottoms = np.array([s.origin[2] + DISTANCE_CAP_M for s in shapes])  # the grids' margin
+    return float(support_z) - bottoms
 
 
 def logsumexp(a: np.ndarray, axis: int) -> np.ndarray:
@@ -372,15 +387,17 @@ class PoseBelief:
     params: PoseParams
     free_sites: FreeSites
     grasps: tuple[GraspLikelihood, LikelihoodParams] | None = None
+    support_z: float | None = None  # the table in the nominal frame (with on_table)
 
     def __post_init__(self) -> None:
         self.hyps = pose_grid(self.params)
         self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
+        self.lifts = class_lifts(self.shapes, self.support_z)
 
     def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
         contacts, free = grasp_points(grasp, pose, self.free_sites)
         total = self.log_b + grasp_log_likelihood(
-            self.shapes, self.hyps, contacts, free, self.params
+            self.shapes, self.hyps, contacts, free, self.params, self.lifts
         )
         if self.grasps is not None:
             model_l, lp = self.grasps

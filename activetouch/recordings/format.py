@@ -117,6 +117,7 @@ JSON_TOPICS: dict[str, tuple[str, dict]] = {
                 "finger_angles": _nums,
                 "preshape": _num,
                 "ignored_sensors": _ints,
+                "support_z": _num,
             },
             ["move", "pose_id", "pose", "sensor_ids", "xyz", "pressures", "finger_angles"],
         ),

@@ -128,10 +128,13 @@ class RecordingWriter(McapFile):
         felt: bool,
         robot_time: dict[str, float],
         ignored: np.ndarray | None = None,
+        support_z: float | None = None,
     ) -> None:
         """One grasp (an `interfaces.Grasp`, hand frame, as the session observed it), the
         belief after it and the robot seconds so far; then the chunk is written out.
-        `ignored`: the sensors masked this recognition (replay leaves them out alike)."""
+        `ignored`: the sensors masked this recognition (replay leaves them out alike).
+        `support_z`: the table plane in the object frame (the pose belief stands each class
+        on it; replay does alike)."""
         ns = time.time_ns()
         p = np.asarray(probabilities, dtype=np.float64)
         self._json(
@@ -146,6 +149,7 @@ class RecordingWriter(McapFile):
                 "finger_angles": grasp.finger_angles,
                 "preshape": float(grasp.preshape),
                 "ignored_sensors": [] if ignored is None else [int(i) for i in ignored],
+                **({} if support_z is None else {"support_z": float(support_z)}),
             },
             ns,
         )

@@ -262,6 +262,7 @@ class SessionRecorder(Protocol):
         felt: bool,
         robot_time: dict[str, float],
         ignored: np.ndarray | None = None,
+        support_z: float | None = None,
     ) -> None: ...
 
 
@@ -376,6 +377,7 @@ class RecognitionSession:
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
         self._pose_of = pose_belief_of(model, recognition, library)
+        self._on_table = (recognition or saved_recognition(model)).pose_on_table
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
@@ -498,7 +500,8 @@ class RecognitionSession:
         visited: list[int] = self._unreachable(res)
         self._travel_costs()
         ruled_out = set(visited)
-        belief = BeliefTracker(self.model, self._likelihood, self._pose_of())
+        table = self.support_z if self._on_table else None
+        belief = BeliefTracker(self.model, self._likelihood, self._pose_of(table))
         state: PlanningState | None = None
         streak = 0
         rec = self.recorder
@@ -541,6 +544,7 @@ class RecognitionSession:
                         "elapsed_s": time.perf_counter() - t0,
                     },
                     ignored=self._masked,
+                    support_z=self.support_z,
                 )
             # Consecutive confident grasps agreeing on the same top class.
             if p[best] < self.cfg.confidence or not felt:
@@ -750,14 +754,14 @@ def class_shapes(names: list[str], library: ObjectLibrary) -> list[ClassShape]:
 
 def pose_belief_of(
     model: TrainedModel, recognition: RecognitionConfig | None, library: ObjectLibrary | None
-) -> Callable[[], PoseBelief | None]:
+) -> Callable[..., PoseBelief | None]:
     """A maker of fresh pose beliefs when `recognition.belief = pose` (one per recognition),
     else of None. Without every class's mesh (objects trained on a robot without one, or no
     library) or without a grasp likelihood, a warning says so and the session uses the grasp
     likelihood, or the histogram, with the placement taken as known."""
     rc = recognition or saved_recognition(model)
     if rc.belief != "pose" or model.likelihood is None:
-        return lambda: None
+        return lambda support_z=None: None
     missing = (
         list(model.class_names)
         if library is None
@@ -770,13 +774,13 @@ def pose_belief_of(
             + (" ..." if len(missing) > 5 else "")
             + " in the object library: using the grasp likelihood, the placement taken as known"
         )
-        return lambda: None
+        return lambda support_z=None: None
     assert library is not None
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
     free = free_sites_for(model_hand_family(model))
     grasps = grasp_likelihood_of(model, rc) if rc.pose_with_grasps else None
-    return lambda: PoseBelief(shapes, params, free, grasps)
+    return lambda support_z=None: PoseBelief(shapes, params, free, grasps, support_z)
 
 
 def belief_table_of(

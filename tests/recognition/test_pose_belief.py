@@ -16,6 +16,8 @@ from activetouch.recognition.pose_belief import (
     ClassShape,
     PoseBelief,
     PoseParams,
+    class_lifts,
+    grasp_log_likelihood,
     in_object_frames,
     pose_grid,
     reflex_free_sites,
@@ -181,3 +183,38 @@ def test_a_cups_cavity_is_open_space():
     sd = shape.signed_distance(q)
     clear = np.abs(sd) > 0.003  # away from the surface (a 4 mm grid read trilinearly)
     assert np.array_equal(sd[clear] < 0, solid[clear])
+
+
+def test_a_taller_class_stands_on_the_table_and_a_grasp_over_the_top_rules_it_out():
+    # The wrist poses are in the true object's frame (a box 8 cm tall, its centre 4 cm over
+    # the table). A box 10 cm tall on the same table has its frame 1 cm higher and its top
+    # 2 cm over the short one's. A finger swept 8 mm over the short box's top is then 12 mm
+    # inside the tall box; centred at the short box's frame it would be only 2 mm inside.
+    short, tall = _shape((0.06, 0.06, 0.08)), _shape((0.06, 0.06, 0.10))
+    lifts = class_lifts([short, tall], support_z=-0.04)
+    assert lifts == pytest.approx([0.0, 0.01], abs=1e-9)
+    assert np.all(class_lifts([short, tall], None) == 0.0)
+    contacts = np.array([[0.03, 0.0, 0.0], [-0.03, 0.0, 0.0]])  # both boxes' sides
+    free = np.array([[x, y, 0.048] for x in (-0.02, 0.0, 0.02) for y in (-0.02, 0.0, 0.02)])
+    hyps = np.zeros((1, 3))
+    p = PoseParams()
+    centred = grasp_log_likelihood([short, tall], hyps, contacts, free, p)[:, 0]
+    standing = grasp_log_likelihood([short, tall], hyps, contacts, free, p, lifts)[:, 0]
+    assert standing[0] == pytest.approx(centred[0])  # the true class does not move
+    assert standing[1] < centred[1] - 5.0  # the tall box is ruled out only standing
+    assert standing[0] > standing[1]
+
+
+def test_the_contact_model_can_expect_sites_off_the_surface():
+    # A sensor site sits under the skin: contacts read 2 mm outside the face they touch.
+    box = _shape((0.06, 0.06, 0.08))
+    contacts = np.array([[0.032, 0.0, 0.0], [-0.032, 0.01, 0.0], [0.0, 0.032, 0.01]])
+    hyps, free = np.zeros((1, 3)), np.zeros((0, 3))
+    at = PoseParams(contact_sigma_m=0.002, contact_offset_m=0.0)
+    on = grasp_log_likelihood([box], hyps, contacts, free, at)
+    off = grasp_log_likelihood(
+        [box], hyps, contacts, free, PoseParams(contact_sigma_m=0.002, contact_offset_m=0.002)
+    )
+    assert off[0, 0] > on[0, 0] + 1.0
+    with pytest.raises(ConfigError, match="pose_contact_offset_m"):
+        PoseParams(contact_offset_m=-0.001)
