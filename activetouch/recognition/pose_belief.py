@@ -156,6 +156,11 @@ class ClassShape:
             raise ValueError("malformed signed-distance grid")
         return cls(origin, step, values)
 
+    @property
+    def bottom_z(self) -> float:
+        """The mesh's lowest point (the grid reaches the cap beyond the mesh's bounds)."""
+        return float(self.origin[2]) + DISTANCE_CAP_M
+
     def signed_distance(self, p: np.ndarray) -> np.ndarray:
         """(M,) at points (M, 3); +cap outside the grid (farther than the cap from it)."""
         u = (np.asarray(p, dtype=np.float64).reshape(-1, 3) - self.origin) / self.step
@@ -325,7 +330,7 @@ def class_lifts(shapes: list[ClassShape], support_z: float | None) -> np.ndarray
     lowest point on the plane. None (no table known): zeros."""
     if support_z is None:
         return np.zeros(len(shapes))
-    bottoms = np.array([s.origin[2] + DISTANCE_CAP_M for s in shapes])  # the grids' margin
+    bottoms = np.array([s.bottom_z for s in shapes])
     return float(support_z) - bottoms
 
 
@@ -387,7 +392,7 @@ class PoseBelief:
     params: PoseParams
     free_sites: FreeSites
     grasps: tuple[GraspLikelihood, LikelihoodParams] | None = None
-    support_z: float | None = None  # the table in the nominal frame (with on_table)
+    support_z: float | None = None  # the table in the nominal frame: classes stand on it
 
     def __post_init__(self) -> None:
         self.hyps = pose_grid(self.params)

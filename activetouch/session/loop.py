@@ -377,7 +377,6 @@ class RecognitionSession:
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
         self._pose_of = pose_belief_of(model, recognition, library)
-        self._on_table = (recognition or saved_recognition(model)).pose_on_table
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
@@ -500,8 +499,7 @@ class RecognitionSession:
         visited: list[int] = self._unreachable(res)
         self._travel_costs()
         ruled_out = set(visited)
-        table = self.support_z if self._on_table else None
-        belief = BeliefTracker(self.model, self._likelihood, self._pose_of(table))
+        belief = BeliefTracker(self.model, self._likelihood, self._pose_of(self.support_z))
         state: PlanningState | None = None
         streak = 0
         rec = self.recorder
@@ -754,14 +752,15 @@ def class_shapes(names: list[str], library: ObjectLibrary) -> list[ClassShape]:
 
 def pose_belief_of(
     model: TrainedModel, recognition: RecognitionConfig | None, library: ObjectLibrary | None
-) -> Callable[..., PoseBelief | None]:
-    """A maker of fresh pose beliefs when `recognition.belief = pose` (one per recognition),
-    else of None. Without every class's mesh (objects trained on a robot without one, or no
-    library) or without a grasp likelihood, a warning says so and the session uses the grasp
-    likelihood, or the histogram, with the placement taken as known."""
+) -> Callable[[float | None], PoseBelief | None]:
+    """A maker of fresh pose beliefs when `recognition.belief = pose` (one per recognition,
+    given the table plane in the object frame if known: with `recognition.pose_on_table` each
+    class stands on it), else of None. Without every class's mesh (objects trained on a robot
+    without one, or no library) or without a grasp likelihood, a warning says so and the
+    session uses the grasp likelihood, or the histogram, with the placement taken as known."""
     rc = recognition or saved_recognition(model)
     if rc.belief != "pose" or model.likelihood is None:
-        return lambda support_z=None: None
+        return lambda support_z: None
     missing = (
         list(model.class_names)
         if library is None
@@ -774,13 +773,16 @@ def pose_belief_of(
             + (" ..." if len(missing) > 5 else "")
             + " in the object library: using the grasp likelihood, the placement taken as known"
         )
-        return lambda support_z=None: None
+        return lambda support_z: None
     assert library is not None
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
     free = free_sites_for(model_hand_family(model))
     grasps = grasp_likelihood_of(model, rc) if rc.pose_with_grasps else None
-    return lambda support_z=None: PoseBelief(shapes, params, free, grasps, support_z)
+    on_table = rc.pose_on_table
+    return lambda support_z: PoseBelief(
+        shapes, params, free, grasps, support_z if on_table else None
+    )
 
 
 def belief_table_of(

@@ -69,7 +69,7 @@ def replay(rec: Recording, model: TrainedModel, library: ObjectLibrary | None = 
     if library is None and (md := recorded_model_dir(rec)) is not None:
         library = ObjectLibrary(md.parent.parent / "objects")
     # The table the session stood each class on (recordings from before it was kept: none).
-    support_z = rec.grasps[0].get("support_z") if rec.grasps and rc.pose_on_table else None
+    support_z = rec.grasps[0].get("support_z") if rec.grasps else None
     belief = BeliefTracker(
         model, grasp_likelihood_of(model, rc), pose_belief_of(model, rc, library)(support_z)
     )
