@@ -158,6 +158,17 @@ def poses_under_offsets(pose: np.ndarray, offsets: np.ndarray) -> np.ndarray:
     return np.concatenate([xyz, quat], axis=1)
 
 
+def pose_at_offset(pose: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """(7,) the wrist `pose` (7, relative to the object) in the believed object frame when the
+    object stands off it by `offset` (3: dx, dy, yaw about the vertical through its origin):
+    T_h * pose, the inverse of `poses_under_offsets`."""
+    o = np.asarray(offset, dtype=np.float64).reshape(3)
+    p = np.asarray(pose, dtype=np.float64).reshape(7)
+    r_h = Rotation.from_euler("z", o[2])
+    xyz = r_h.apply(p[:3]) + np.array([o[0], o[1], 0.0])
+    return np.concatenate([xyz, (r_h * Rotation.from_quat(p[3:])).as_quat()])
+
+
 def placement_offsets(range_m: float, range_deg: float) -> np.ndarray:
     """(H, 3) the placements the planner averages a grasp's evidence over: the believed one,
     the 8 around it at +-`range_m` in x and y, and turned +-`range_deg` (none if both 0)."""

@@ -59,6 +59,7 @@ from activetouch.recognition.grasp_likelihood import (
     GraspLikelihood,
     LikelihoodParams,
     placement_offsets,
+    pose_at_offset,
     softmax_belief,
 )
 from activetouch.recognition.pose_belief import (
@@ -377,6 +378,11 @@ class RecognitionSession:
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
         self._pose_of = pose_belief_of(model, recognition, library)
+        rc = recognition or saved_recognition(model)
+        self._follow = rc.belief == "pose" and rc.pose_follow
+        # Where the object is believed to stand off its nominal placement (dx, dy, yaw): the
+        # grasps go there with `recognition.pose_follow`; zeros otherwise.
+        self._offset = np.zeros(3)
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
@@ -424,8 +430,15 @@ class RecognitionSession:
             else:
                 self._grasp_s += time.perf_counter() - t
 
+    def _target(self, pose_id: int) -> Pose:
+        """The wrist pose (object frame) of training pose `pose_id` on the object as it is
+        believed to stand."""
+        if not self._offset.any():
+            return Pose.from_array(self._poses[pose_id])
+        return Pose.from_array(pose_at_offset(self._poses[pose_id], self._offset))
+
     def _grasp_at(self, pose_id: int) -> tuple[Grasp, Pose]:
-        pose = Pose.from_array(self._poses[pose_id])
+        pose = self._target(pose_id)
         preshape = float(self._preshapes[pose_id])
         self._hand(self.hand.open)
         self._hand(lambda: self.hand.preshape(preshape))  # as training grasped here
@@ -492,6 +505,7 @@ class RecognitionSession:
         names = self.model.class_names
         res = RecognitionResult(label="", probability=0.0)
         self._grasp_s = 0.0
+        self._offset = np.zeros(3)
         clock0 = motion_clock(self.wrist)
         res.masked_reasons = self._mask_at_rest()
         res.masked_sensors = list(res.masked_reasons)
@@ -518,6 +532,9 @@ class RecognitionSession:
                 log_belief=belief.log_belief,
             )
             best = int(np.argmax(p))
+            if self._follow and belief.pose is not None and felt:
+                est = belief.pose.estimate(best)
+                self._offset = np.array([est.dx_m, est.dy_m, np.deg2rad(est.yaw_deg)])
             res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
@@ -528,7 +545,7 @@ class RecognitionSession:
                 rec.grasp(
                     len(res.labels),
                     pose_id,
-                    self._poses[pose_id],
+                    pose.as_array(),
                     grasp,
                     p,
                     res.labels[-1],
@@ -556,7 +573,7 @@ class RecognitionSession:
                     Progress(
                         move=len(res.labels),
                         pose_id=pose_id,
-                        pose=self._poses[pose_id].copy(),
+                        pose=pose.as_array(),
                         n_contacts=grasp.n_contacts,
                         top=top_k(p, names) if felt else [],
                         skipped=res.skipped,
@@ -589,7 +606,7 @@ class RecognitionSession:
         def attempt(pose_id: int) -> bool:
             """Grasp at `pose_id`; an unreachable pose is skipped. True if it was grasped."""
             if rec is not None:
-                rec.wrist_goal(len(res.labels) + 1, pose_id, self._poses[pose_id])
+                rec.wrist_goal(len(res.labels) + 1, pose_id, self._target(pose_id).as_array())
             try:
                 grasp, pose = self._grasp_at(pose_id)
             except UnreachableError as e:

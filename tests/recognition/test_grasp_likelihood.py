@@ -268,3 +268,23 @@ def test_the_planners_table_averaged_over_placements():
     moved = poses_under_offsets(x, np.array([[0.02, -0.01, 0.0], [0.0, 0.0, np.pi / 2]]))
     np.testing.assert_allclose(moved[0, :3], x[:3] - [0.02, -0.01, 0.0])
     np.testing.assert_allclose(moved[1, :3], [0.0, -0.1, 0.2], atol=1e-12)  # turned back
+
+
+def test_a_pose_placed_on_an_offset_object_is_undone_by_the_offset():
+    from activetouch.recognition.grasp_likelihood import pose_at_offset, poses_under_offsets
+
+    # The object 1 cm along x and turned 90 deg: a wrist 0.1 m along the object's x is 0.1 m
+    # along the believed frame's y, plus the shift, and turned with it.
+    x = np.array([0.1, 0.0, 0.2, 0.0, 0.0, 0.0, 1.0])
+    placed = pose_at_offset(x, np.array([0.01, 0.0, np.pi / 2]))
+    np.testing.assert_allclose(placed[:3], [0.01, 0.1, 0.2], atol=1e-12)
+    s = np.sqrt(0.5)
+    np.testing.assert_allclose(np.abs(placed[3:]), [0.0, 0.0, s, s], atol=1e-12)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.normal(size=4)
+        pose = np.concatenate([rng.normal(size=3) * 0.1, q / np.linalg.norm(q)])
+        off = np.array([*rng.uniform(-0.03, 0.03, 2), rng.uniform(-0.5, 0.5)])
+        back = poses_under_offsets(pose_at_offset(pose, off), off[None])[0]
+        np.testing.assert_allclose(back[:3], pose[:3], atol=1e-12)
+        assert abs(abs(back[3:] @ pose[3:]) - 1.0) < 1e-12  # the same rotation
