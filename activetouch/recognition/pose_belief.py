@@ -370,6 +370,40 @@ def pose_estimate(log_b: np.ndarray, hyps: np.ndarray, k: int) -> PoseEstimate:
     )
 
 
+def peak_offset(log_b: np.ndarray, hyps: np.ndarray) -> np.ndarray:
+    """(3,) where one class stands (dx, dy, yaw) by its log belief over the grid `hyps`
+    (`pose_grid` order), between grid points. Along an axis the belief has pinned down (its
+    spread under a step) the best hypothesis moves to the vertex of the parabola through it
+    and its two neighbours (at most half a step); along one it has not (a round object's yaw)
+    the posterior mean stands, which does not pick an edge of the grid by chance. Grasps
+    placed on it land nearer where training grasped than on the grid's 1 cm."""
+    axes = [np.unique(hyps[:, i]) for i in range(3)]
+    shape = tuple(len(a) for a in axes)
+    lb = np.asarray(log_b, dtype=np.float64).reshape(-1)
+    w = np.exp(lb - lb.max())
+    w /= w.sum()
+    mean = w @ hyps
+    sd = np.sqrt(np.maximum(0.0, w @ (hyps - mean) ** 2))
+    grid = lb.reshape(shape)
+    at = np.unravel_index(int(np.argmax(lb)), shape)
+    out = mean.copy()
+    for i in range(3):
+        step = axes[i][1] - axes[i][0] if shape[i] > 1 else 0.0
+        if shape[i] == 1 or sd[i] > step:
+            continue
+        out[i] = axes[i][at[i]]
+        if not 0 < at[i] < shape[i] - 1:
+            continue
+        lo, hi = list(at), list(at)
+        lo[i] -= 1
+        hi[i] += 1
+        a, b, c = grid[tuple(lo)], grid[at], grid[tuple(hi)]
+        curve = a - 2.0 * b + c
+        if np.isfinite(curve) and curve < -1e-9:
+            out[i] += float(np.clip(0.5 * (a - c) / curve, -0.5, 0.5)) * step
+    return out
+
+
 def wrist_under_hypotheses(pose: Pose, hyps: np.ndarray) -> np.ndarray:
     """(H, 7) the wrist `pose` (nominal object frame) relative to the object as it stands
     under each hypothesis: T_h^-1 * pose (x y z qx qy qz qw)."""
@@ -421,3 +455,7 @@ class PoseBelief:
 
     def estimate(self, k: int) -> PoseEstimate:
         return pose_estimate(self.log_b, self.hyps, k)
+
+    def peak(self, k: int) -> np.ndarray:
+        """(3,) where class `k` most likely stands, between the grid points (`peak_offset`)."""
+        return peak_offset(self.log_b[k], self.hyps)

@@ -533,8 +533,7 @@ class RecognitionSession:
             )
             best = int(np.argmax(p))
             if self._follow and belief.pose is not None and felt:
-                est = belief.pose.estimate(best)
-                self._offset = np.array([est.dx_m, est.dy_m, np.deg2rad(est.yaw_deg)])
+                self._offset = belief.pose.peak(best)
             res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)

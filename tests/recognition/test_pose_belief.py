@@ -19,6 +19,7 @@ from activetouch.recognition.pose_belief import (
     class_lifts,
     grasp_log_likelihood,
     in_object_frames,
+    peak_offset,
     pose_grid,
     reflex_free_sites,
 )
@@ -218,3 +219,20 @@ def test_the_contact_model_can_expect_sites_off_the_surface():
     assert off[0, 0] > on[0, 0] + 1.0
     with pytest.raises(ConfigError, match="pose_contact_offset_m"):
         PoseParams(contact_offset_m=-0.001)
+
+
+def test_the_peak_is_found_between_grid_points_and_not_along_a_flat_axis():
+    # A log belief quadratic in dx and dy (as Gaussian contacts give) peaks at its centre,
+    # off the 1 cm grid; flat in yaw (a round object), its yaw is the posterior mean, 0.
+    hyps = pose_grid(PoseParams())
+    centre = np.array([0.013, -0.004])
+    lb = -0.5 * np.sum((hyps[:, :2] - centre) ** 2, axis=1) / 0.004**2
+    got = peak_offset(lb, hyps)
+    np.testing.assert_allclose(got[:2], centre, atol=1e-12)
+    assert abs(got[2]) < 1e-12
+    # Curved in yaw too, about 10 deg: found between the 7.5 deg steps.
+    lb2 = lb - 0.5 * (hyps[:, 2] - np.deg2rad(10.0)) ** 2 / np.deg2rad(6.0) ** 2
+    np.testing.assert_allclose(peak_offset(lb2, hyps), [*centre, np.deg2rad(10.0)], atol=1e-12)
+    # At the grid's edge there is no neighbour beyond: the edge point itself.
+    edge = -0.5 * np.sum((hyps[:, :2] - 0.05) ** 2, axis=1) / 0.004**2
+    np.testing.assert_allclose(peak_offset(edge, hyps)[:2], [0.03, 0.03])
