@@ -108,9 +108,10 @@ class RecognitionConfig:
     pose_prior_sigma_deg: float = 0.0
     # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     # Grasp where the object is believed to stand: each grasp's wrist pose is its training
-    # pose placed on the placement the belief estimates (under its top class) after the
-    # grasps so far, not on the nominal one, so a misplaced object is grasped where training
-    # grasped it and the training grasps' term can tell look-alikes apart again.
+    # pose placed where the mesh's term of the pose belief says the object stands after the
+    # grasps so far (`PoseBelief.placement_peak`), not on the nominal placement, so a
+    # misplaced object is grasped where training grasped it and the training grasps' term can
+    # tell look-alikes apart again (docs/benchmark.md).
     pose_follow: bool = False
     pose_with_grasps: bool = True
     pose_grasps_weight: float = 4.0  # that term's weight against the mesh's (log scale; tuned)

@@ -432,12 +432,14 @@ class PoseBelief:
         self.hyps = pose_grid(self.params)
         self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
         self.lifts = class_lifts(self.shapes, self.support_z)
+        # The mesh's term alone: where the object stands by geometry (`placement_peak`).
+        self.mesh_log_b = self.log_b.copy()
 
     def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
         contacts, free = grasp_points(grasp, pose, self.free_sites)
-        total = self.log_b + grasp_log_likelihood(
-            self.shapes, self.hyps, contacts, free, self.params, self.lifts
-        )
+        mesh = grasp_log_likelihood(self.shapes, self.hyps, contacts, free, self.params, self.lifts)
+        self.mesh_log_b = self.mesh_log_b + mesh
+        total = self.log_b + mesh
         if self.grasps is not None:
             model_l, lp = self.grasps
             best = total.max(axis=0)
@@ -456,6 +458,12 @@ class PoseBelief:
     def estimate(self, k: int) -> PoseEstimate:
         return pose_estimate(self.log_b, self.hyps, k)
 
-    def peak(self, k: int) -> np.ndarray:
-        """(3,) where class `k` most likely stands, between the grid points (`peak_offset`)."""
-        return peak_offset(self.log_b[k], self.hyps)
+    def placement_peak(self) -> np.ndarray:
+        """(3,) where the object most likely stands (`peak_offset`) by the mesh's term alone,
+        under the class that term finds likeliest. Not by the whole belief: the training
+        grasps' term favours wherever a class's grasps happen to match, so once a grasp lands
+        off, a look-alike's chance match would pull the next grasps to its placement, and away
+        from where the true class's training grasps could match (the hard library, tuning
+        seeds: 76.1 % with the whole belief's peak, 82.7 % with the mesh's)."""
+        k = int(np.argmax(logsumexp(self.mesh_log_b, axis=1)))
+        return peak_offset(self.mesh_log_b[k], self.hyps)

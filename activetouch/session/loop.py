@@ -533,7 +533,7 @@ class RecognitionSession:
             )
             best = int(np.argmax(p))
             if self._follow and belief.pose is not None and felt:
-                self._offset = belief.pose.peak(best)
+                self._offset = belief.pose.placement_peak()
             res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)

@@ -236,3 +236,45 @@ def test_the_peak_is_found_between_grid_points_and_not_along_a_flat_axis():
     # At the grid's edge there is no neighbour beyond: the edge point itself.
     edge = -0.5 * np.sum((hyps[:, :2] - 0.05) ** 2, axis=1) / 0.004**2
     np.testing.assert_allclose(peak_offset(edge, hyps)[:2], [0.03, 0.03])
+
+
+class _FavourClass:
+    """A training-grasp term that favours one class everywhere, as a look-alike's chance
+    matches do once grasps land off their training poses."""
+
+    def __init__(self, k: int, n_classes: int, nats: float) -> None:
+        self.k, self.n, self.nats = k, n_classes, nats
+
+    def log_likelihood_at_poses(self, grasp, poses, params, ignore=None):
+        out = np.zeros((len(poses), self.n))
+        out[:, self.k] = self.nats
+        return out
+
+
+def test_where_the_grasps_go_is_found_by_the_mesh_between_grid_points(box):
+    # The box off the grid's points; a training-grasp term that favours the larger box makes
+    # it the belief's class, but the placement the next grasps go to is the one the mesh
+    # finds for the box, within a few millimetres and degrees of the truth.
+    larger = _shape((0.12, 0.06, 0.08))
+    favour = (_FavourClass(1, 2, 50.0), None)
+    belief = PoseBelief([box, larger], PoseParams(), reflex_free_sites(), grasps=favour)
+    up = Pose([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
+    truth = (0.013, -0.006, 11.0)
+    for seed in range(8):
+        c = _contacts_on(BOX, *truth, n=6, seed=seed) - up.xyz
+        belief.update(
+            Grasp(
+                sensor_ids=np.arange(6),
+                xyz=c,
+                pressures=np.full(6, 50.0),
+                finger_angles=np.zeros(3),
+                preshape=0.0,
+            ),
+            up,
+        )
+    assert np.argmax(belief.class_log_belief()) == 1  # the favoured look-alike leads
+    dx, dy, yaw = belief.placement_peak()
+    assert dx == pytest.approx(0.013, abs=0.003) and dy == pytest.approx(-0.006, abs=0.003)
+    assert np.rad2deg(yaw) == pytest.approx(11.0, abs=3.0)
+    grid_best = belief.hyps[np.argmax(belief.mesh_log_b[0])]
+    assert np.hypot(dx - 0.013, dy + 0.006) < np.hypot(grid_best[0] - 0.013, grid_best[1] + 0.006)

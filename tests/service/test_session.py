@@ -548,7 +548,10 @@ def test_with_pose_follow_the_grasps_go_where_the_object_is_believed_to_stand(
         assert err.yaw_rad == 0.0
         np.testing.assert_array_equal(seen[0].pose, train[seen[0].pose_id])  # as trained
         on_object = [poses_under_offsets(s.pose, true)[0] for s in seen]
-        gap = [np.linalg.norm(p[:3] - train[s.pose_id][:3]) for p, s in zip(on_object, seen)]
+        gap = [
+            np.linalg.norm(p[:3] - train[s.pose_id][:3])
+            for p, s in zip(on_object, seen, strict=True)
+        ]
         return np.array(gap), float(np.hypot(err.dx, err.dy))
 
     for obj, seed in (("bottle", 1), ("cup", 2)):
