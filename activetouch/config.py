@@ -315,6 +315,10 @@ class SessionConfig:
     # only above rest + noise_k sigma (or the hand's own threshold, whichever is higher).
     rest_readings: int = 20
     noise_k: float = 5.0
+    # After each close, the fingers still on the object: this many new readings, and a contact
+    # counts only if its sensor reads contact in all of them (a spike lasts one packet, a touch
+    # stays). 0: the close's own reading alone.
+    confirm_readings: int = 0
 
 
 @dataclass

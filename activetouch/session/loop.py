@@ -163,6 +163,24 @@ def above_thresholds(grasp: Grasp, thresholds: np.ndarray) -> Grasp:
     return without_sensors(grasp, grasp.sensor_ids[~keep])
 
 
+def confirmed(
+    grasp: Grasp, pressures: np.ndarray, contact: np.ndarray, thresholds: np.ndarray | None
+) -> Grasp:
+    """`grasp` without the contacts that did not last: those whose sensor is not in contact
+    in every one of the (n, sensors) readings taken after the close, the fingers still on the
+    object (over `thresholds` where the session set them, else the hand's own flags). A spike
+    does not outlast its packet; a touch does. No readings: `grasp` as it is."""
+    p = np.asarray(pressures, dtype=np.float64)
+    if p.ndim != 2 or len(p) == 0 or not len(grasp.sensor_ids):
+        return grasp
+    held = (p > thresholds).all(axis=0) if thresholds is not None else contact.all(axis=0)
+    ids = grasp.sensor_ids
+    inside = ids < len(held)
+    lasted = np.zeros(len(ids), dtype=bool)
+    lasted[inside] = held[ids[inside]]
+    return grasp if lasted.all() else without_sensors(grasp, ids[~lasted])
+
+
 @dataclass(frozen=True)
 class RestLevels:
     """What the sensors read with the hand open: per-sensor mean and standard deviation of
@@ -363,6 +381,11 @@ class RecognitionSession:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
             raise ConfigError(f"session.stable_grasps must be >= 1, got {cfg.stable_grasps}")
+        if not 0 <= cfg.confirm_readings <= 40:
+            raise ConfigError(
+                f"session.confirm_readings must be in 0..40 (readings at 40 Hz), got "
+                f"{cfg.confirm_readings}"
+            )
         check_model_hand(model, hand)
         self.hand, self.wrist, self.model, self.policy = hand, wrist, model, policy
         self.cfg, self.rng = cfg, rng
@@ -445,6 +468,9 @@ class RecognitionSession:
         self.wrist.move_to(pose)  # raises UnreachableError
         grasp = self._hand(self.hand.guarded_close)
         assert grasp is not None
+        if self.cfg.confirm_readings > 0 and len(grasp.sensor_ids):
+            states = read_states(self.hand, self.cfg.confirm_readings, timeout_s=2.0)
+            grasp = confirmed(grasp, *states, self._thresholds)
         self._hand(self.hand.open)
         if self._masked.size:
             grasp = without_sensors(grasp, self._masked)

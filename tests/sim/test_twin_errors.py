@@ -264,3 +264,49 @@ def test_the_registrys_twin_rig_applies_the_errors_too(box, tmp_path):
         assert not nominal.hand.state().contact.any()
     finally:
         nominal.close()
+
+
+def test_confirmed_keeps_only_contacts_that_last():
+    from activetouch.interfaces import Grasp
+    from activetouch.session.loop import confirmed
+
+    g = Grasp(
+        sensor_ids=np.array([1, 4, 7]),
+        xyz=np.arange(9, dtype=float).reshape(3, 3),
+        pressures=np.array([40.0, 40.0, 40.0]),
+        finger_angles=np.zeros(3),
+        preshape=0.0,
+    )
+    p = np.zeros((2, 38))
+    p[:, [1, 7]] = 35.0
+    p[0, 4] = 35.0  # sensor 4 in the first reading after the close, gone in the second
+    kept = confirmed(g, p, p > 20.0, np.full(38, 20.0))
+    assert kept.sensor_ids.tolist() == [1, 7] and kept.xyz.tolist() == [[0, 1, 2], [6, 7, 8]]
+    thr = np.full(38, 20.0)
+    thr[7] = 36.0  # over the session's threshold for sensor 7 only in the hand's flags
+    assert confirmed(g, p, p > 20.0, thr).sensor_ids.tolist() == [1]
+    assert confirmed(g, p, p > 20.0, None).sensor_ids.tolist() == [1, 7]  # the hand's flags
+    assert confirmed(g, np.zeros((0, 38)), np.zeros((0, 38), bool), None) is g  # no reading
+
+
+def test_spurious_contacts_do_not_last_a_touch_does(box):
+    # On the empty table every contact a grasp reports is spurious: none is in contact in the
+    # next reading, the fingers still closed. On the box, the contacts all last.
+    from activetouch.interfaces import Pose
+    from activetouch.planning.grid import training_grid
+    from activetouch.session.loop import confirmed
+
+    cfg = load_config(None, ["sim.fault_spurious=0.5"])
+    with open_twin(None, cfg.sim, seed=4) as twin:
+        g = twin.hand.guarded_close()
+        assert g.sensor_ids.size > 5
+        s = twin.hand.state()
+        assert confirmed(g, s.pressures[None], s.contact[None], None).sensor_ids.size == 0
+    nominal = load_config(None, [])
+    grid = training_grid(np.array([0.10, 0.06, 0.08]), nominal.grid)
+    with open_twin(box, nominal.sim, seed=4) as twin:
+        twin.wrist.move_to(Pose.from_array(grid.poses[len(grid) // 2]))
+        g = twin.hand.guarded_close()
+        assert g.sensor_ids.size >= 2
+        s = twin.hand.state()
+        assert confirmed(g, s.pressures[None], s.contact[None], None) is g
