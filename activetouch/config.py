@@ -112,7 +112,7 @@ class RecognitionConfig:
     # grasps so far (`PoseBelief.placement_peak`), not on the nominal placement, so a
     # misplaced object is grasped where training grasped it and the training grasps' term can
     # tell look-alikes apart again (docs/benchmark.md).
-    pose_follow: bool = False
+    pose_follow: bool = True
     pose_with_grasps: bool = True
     pose_grasps_weight: float = 4.0  # that term's weight against the mesh's (log scale; tuned)
     # With the pose belief, the planner judges what a grasp will tell as if the object stood
@@ -575,6 +575,7 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
         out["recognition.pose_floor"] = rc.pose_floor
         out["recognition.pose_on_table"] = rc.pose_on_table
         out["recognition.pose_contact_offset_m"] = rc.pose_contact_offset_m
+        out["recognition.pose_follow"] = rc.pose_follow
     out["hand.type"] = cfg.hand.type
     return out
 

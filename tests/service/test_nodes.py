@@ -517,11 +517,25 @@ def test_a_streaming_hand_is_published_beside_a_running_grasp(
     )
     rh = client_session.closing(RemoteHand(client_session.session, ROBOT, timeout=3.0))
     rh.connect()
+    # Readings until one arrives: the subscription is matched (a reading published before
+    # that is not kept, and on a loaded machine matching can outlast the grasp below).
+    for _ in range(200):
+        hand.emit()
+        try:
+            latest.wait(0.05)
+            break
+        except NodeUnavailableError:
+            continue
+    seen = latest.count
     t = threading.Thread(target=rh.guarded_close)  # holds the node's worker for 1 s
     t.start()
     time.sleep(0.2)
     hand.emit(stale=True)  # a reading during the grasp: published at once
-    msg = latest.wait(10.0)  # generous: a loaded machine delays the delivery, not the publish
+    for _ in range(50):  # past any reading from the loop above still on its way
+        msg = latest.wait(10.0, newer_than=seen)  # a loaded machine delays the delivery
+        if msg.stale:
+            break
+        seen = latest.count
     assert msg.stale is True and msg.wall_stamp == 123.0
     t.join(5.0)
 
