@@ -90,7 +90,12 @@ class RecognitionConfig:
     pose_step_m: float = 0.01
     pose_range_deg: float = 30.0
     pose_step_deg: float = 7.5
-    pose_contact_sigma_m: float = 0.005
+    # A contact's spread about the surface, no finer than the hypotheses' 1 cm grid: at 5 mm a
+    # class's likelihood peaked between grid points, and a class whose yaw swings its body
+    # about an off-centre origin (a handle mug) found a hypothesis nearer that peak than a
+    # round look-alike could, and drew the misses (hard library, tuning seeds: 81.8 % at 5 mm,
+    # 86.4 % at 1 cm; docs/benchmark.md).
+    pose_contact_sigma_m: float = 0.01
     # Where a contact's sensor site lies off the surface it touches, on average: outside, as
     # the site sits under the skin and the skin spreads a touch to the sites beside it (the
     # training grasps' contacts: 1.8 mm at the median). Tuned (docs/results/robust).
@@ -575,6 +580,7 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
         out["recognition.pose_floor"] = rc.pose_floor
         out["recognition.pose_on_table"] = rc.pose_on_table
         out["recognition.pose_contact_offset_m"] = rc.pose_contact_offset_m
+        out["recognition.pose_contact_sigma_m"] = rc.pose_contact_sigma_m
         out["recognition.pose_follow"] = rc.pose_follow
     out["hand.type"] = cfg.hand.type
     return out
