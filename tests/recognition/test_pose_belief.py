@@ -79,12 +79,10 @@ def _contacts_on(extents, dx, dy, yaw_deg, n, seed) -> np.ndarray:
     return r.apply(np.asarray(pts)) + np.array([dx, dy, 0.0])
 
 
-def test_a_misplaced_box_is_found_and_told_from_a_larger_one(box):
-    larger = _shape((0.12, 0.06, 0.08))
-    belief = PoseBelief([box, larger], PoseParams(), reflex_free_sites())
+def _feel_box(belief: PoseBelief, truth: tuple[float, float, float]) -> None:
+    """Eight grasps of six contacts each on BOX standing at `truth` (dx, dy, yaw deg)."""
     # Palm far above (hand frame = object frame shifted up 1 m): its quiet sites say nothing.
     up = Pose([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
-    truth = (0.02, -0.01, 15.0)
     for seed in range(8):
         c = _contacts_on(BOX, *truth, n=6, seed=seed) - up.xyz
         belief.update(
@@ -97,6 +95,12 @@ def test_a_misplaced_box_is_found_and_told_from_a_larger_one(box):
             ),
             up,
         )
+
+
+def test_a_misplaced_box_is_found_and_told_from_a_larger_one(box):
+    larger = _shape((0.12, 0.06, 0.08))
+    belief = PoseBelief([box, larger], PoseParams(), reflex_free_sites())
+    _feel_box(belief, (0.02, -0.01, 15.0))
     p = np.exp(belief.class_log_belief() - belief.class_log_belief().max())
     assert p[0] / p.sum() > 0.95
     est = belief.estimate(0)
@@ -258,20 +262,7 @@ def test_where_the_grasps_go_is_found_by_the_mesh_between_grid_points(box):
     larger = _shape((0.12, 0.06, 0.08))
     favour = (_FavourClass(1, 2, 50.0), None)
     belief = PoseBelief([box, larger], PoseParams(), reflex_free_sites(), grasps=favour)
-    up = Pose([0.0, 0.0, 1.0], [0.0, 0.0, 0.0, 1.0])
-    truth = (0.013, -0.006, 11.0)
-    for seed in range(8):
-        c = _contacts_on(BOX, *truth, n=6, seed=seed) - up.xyz
-        belief.update(
-            Grasp(
-                sensor_ids=np.arange(6),
-                xyz=c,
-                pressures=np.full(6, 50.0),
-                finger_angles=np.zeros(3),
-                preshape=0.0,
-            ),
-            up,
-        )
+    _feel_box(belief, (0.013, -0.006, 11.0))
     assert np.argmax(belief.class_log_belief()) == 1  # the favoured look-alike leads
     dx, dy, yaw = belief.placement_peak()
     assert dx == pytest.approx(0.013, abs=0.003) and dy == pytest.approx(-0.006, abs=0.003)
