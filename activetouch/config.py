@@ -111,13 +111,13 @@ class RecognitionConfig:
     # likelier than large ones, so a look-alike turned far to hide its difference pays for it.
     pose_prior_sigma_m: float = 0.0
     pose_prior_sigma_deg: float = 0.0
-    # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     # Grasp where the object is believed to stand: each grasp's wrist pose is its training
     # pose placed where the mesh's term of the pose belief says the object stands after the
     # grasps so far (`PoseBelief.placement_peak`), not on the nominal placement, so a
     # misplaced object is grasped where training grasped it and the training grasps' term can
     # tell look-alikes apart again (docs/benchmark.md).
     pose_follow: bool = True
+    # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     pose_with_grasps: bool = True
     pose_grasps_weight: float = 4.0  # that term's weight against the mesh's (log scale; tuned)
     # With the pose belief, the planner judges what a grasp will tell as if the object stood

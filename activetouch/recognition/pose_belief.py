@@ -354,12 +354,18 @@ class PoseEstimate:
         return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
 
-def pose_estimate(log_b: np.ndarray, hyps: np.ndarray, k: int) -> PoseEstimate:
-    """Posterior mean and standard deviation of the hypotheses of class `k`."""
-    w = np.exp(log_b[k] - np.max(log_b[k]))
+def mean_and_spread(log_b: np.ndarray, hyps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(3,) posterior mean and (3,) standard deviation of the hypotheses `hyps` (H, 3) under
+    one class's log belief `log_b` (H,)."""
+    w = np.exp(log_b - np.max(log_b))
     w /= w.sum()
     mean = w @ hyps
-    sd = np.sqrt(np.maximum(0.0, w @ (hyps - mean) ** 2))
+    return mean, np.sqrt(np.maximum(0.0, w @ (hyps - mean) ** 2))
+
+
+def pose_estimate(log_b: np.ndarray, hyps: np.ndarray, k: int) -> PoseEstimate:
+    """Posterior mean and standard deviation of the hypotheses of class `k`."""
+    mean, sd = mean_and_spread(log_b[k], hyps)
     return PoseEstimate(
         float(mean[0]),
         float(mean[1]),
@@ -380,10 +386,7 @@ def peak_offset(log_b: np.ndarray, hyps: np.ndarray) -> np.ndarray:
     axes = [np.unique(hyps[:, i]) for i in range(3)]
     shape = tuple(len(a) for a in axes)
     lb = np.asarray(log_b, dtype=np.float64).reshape(-1)
-    w = np.exp(lb - lb.max())
-    w /= w.sum()
-    mean = w @ hyps
-    sd = np.sqrt(np.maximum(0.0, w @ (hyps - mean) ** 2))
+    mean, sd = mean_and_spread(lb, hyps)
     grid = lb.reshape(shape)
     at = np.unravel_index(int(np.argmax(lb)), shape)
     out = mean.copy()
@@ -437,6 +440,7 @@ class PoseBelief:
         self.hyps = pose_grid(self.params)
         self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
         self.lifts = class_lifts(self.shapes, self.support_z)
+        self._nominal = int(np.flatnonzero(np.all(self.hyps == 0.0, axis=1))[0])  # h = 0
         # The mesh's term alone: where the object stands by geometry (`placement_peak`).
         self.mesh_log_b = self.log_b.copy()
 
@@ -473,8 +477,7 @@ class PoseBelief:
         chance match would pull the next grasps to its placement, away from where the true
         class's training grasps could match."""
         anyone = logsumexp(self.mesh_log_b, axis=0)
-        zero = np.flatnonzero(np.all(self.hyps == 0.0, axis=1))
-        if len(zero) and anyone[zero[0]] >= anyone.max() - NOMINAL_NATS:
+        if anyone[self._nominal] >= anyone.max() - NOMINAL_NATS:
             return np.zeros(3)  # where training grasped is as good as any: stay on it
         k = int(np.argmax(logsumexp(self.mesh_log_b, axis=1)))
         return peak_offset(self.mesh_log_b[k], self.hyps)

@@ -401,8 +401,8 @@ class RecognitionSession:
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
         self._pose_of = pose_belief_of(model, recognition, library)
-        rc = recognition or saved_recognition(model)
-        self._follow = rc.belief == "pose" and rc.pose_follow
+        # Only a pose belief has a placement to follow (`belief.pose` is None otherwise).
+        self._follow = (recognition or saved_recognition(model)).pose_follow
         # Where the object is believed to stand off its nominal placement (dx, dy, yaw): the
         # grasps go there with `recognition.pose_follow`; zeros otherwise.
         self._offset = np.zeros(3)
