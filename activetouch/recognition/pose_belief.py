@@ -418,6 +418,20 @@ def wrist_under_hypotheses(pose: Pose, hyps: np.ndarray) -> np.ndarray:
 # stands where it should (the hard library, nominal, tuning seeds 100-102: 97 % following it,
 # against 100 % without).
 NOMINAL_NATS = 1.0
+# Classes under this share of the mesh's class marginal have no say in where the grasps go.
+COALITION_WEIGHT = 1e-3
+
+
+def coalition_scores(peaks: np.ndarray, weights: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """(n,) for each class's placement (`peaks` (n, 3): dx, dy, yaw), the probability of the
+    classes (`weights` (n,)) whose own placements put the object within about `scale` (3,)
+    of it: grasps placed there land on their training poses for all of them."""
+    d = peaks[:, None, :] - peaks[None, :, :]
+    d[..., 2] = np.angle(np.exp(1j * d[..., 2]))  # yaw differences wrapped to +-pi
+    near = np.exp(-0.5 * np.sum((d / scale) ** 2, axis=-1))
+    return near @ weights
+
+
 # Hypotheses whose best class is this far (nats) below the best pair get no training-grasp
 # term (they are ruled out already; it is the costly part).
 PRUNE_NATS = 15.0
@@ -471,13 +485,22 @@ class PoseBelief:
         """(3,) where the object most likely stands by the mesh's term alone: the nominal
         placement while, over all classes, it is within `NOMINAL_NATS` of the best (after a
         grasp or two the likeliest class is a guess: a mug 1.4 cm off fits a ball's side as
-        well as the ball does where it stands); else the peak (`peak_offset`) of the class
-        that term finds likeliest. Not by the whole belief: the training grasps' term favours
-        wherever a class's grasps happen to match, so once a grasp lands off, a look-alike's
-        chance match would pull the next grasps to its placement, away from where the true
-        class's training grasps could match."""
+        well as the ball does where it stands); else, of the classes' own peaks
+        (`peak_offset`), the one most of that term's class probability agrees with
+        (`coalition_scores`). A placement is a class's frame: a handle mug's is off its body,
+        so where it puts a round body is not where a round class does, and grasps placed for
+        the one land off the other's training poses, whose term then reads at its floor
+        (following the likeliest class alone, a handle mug drew the grasps to its frame and
+        took a round object's runs). Not by the whole belief: the training grasps' term
+        favours wherever a class's grasps happen to match, so a look-alike's chance match would
+        pull the next grasps to its placement, away from where the true class's could match."""
         anyone = logsumexp(self.mesh_log_b, axis=0)
         if anyone[self._nominal] >= anyone.max() - NOMINAL_NATS:
             return np.zeros(3)  # where training grasped is as good as any: stay on it
-        k = int(np.argmax(logsumexp(self.mesh_log_b, axis=1)))
-        return peak_offset(self.mesh_log_b[k], self.hyps)
+        per_class = logsumexp(self.mesh_log_b, axis=1)
+        w = np.exp(per_class - per_class.max())
+        w /= w.sum()
+        live = np.flatnonzero(w >= COALITION_WEIGHT)
+        peaks = np.array([peak_offset(self.mesh_log_b[k], self.hyps) for k in live])
+        scale = np.array([self.params.step_m, self.params.step_m, np.deg2rad(self.params.step_deg)])
+        return peaks[int(np.argmax(coalition_scores(peaks, w[live], scale)))]

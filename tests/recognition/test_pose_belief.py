@@ -269,3 +269,22 @@ def test_where_the_grasps_go_is_found_by_the_mesh_between_grid_points(box):
     assert np.rad2deg(yaw) == pytest.approx(11.0, abs=3.0)
     grid_best = belief.hyps[np.argmax(belief.mesh_log_b[0])]
     assert np.hypot(dx - 0.013, dy + 0.006) < np.hypot(grid_best[0] - 0.013, grid_best[1] + 0.006)
+
+
+def test_the_grasps_go_where_most_of_the_likely_classes_have_the_object(box):
+    # One class, alone likelier than any other, puts the object at B (as a handle mug does
+    # whose frame is off its body); three others, together likelier, agree it stands at A.
+    # Grasps placed for A land on the training poses of three quarters of the belief.
+    belief = PoseBelief([box] * 4, PoseParams(), reflex_free_sites())
+    hyps = belief.hyps
+    a, b = np.array([0.012, -0.008]), np.array([-0.02, 0.005])
+
+    def peaked(at: np.ndarray, top: float) -> np.ndarray:
+        xy = np.sum((hyps[:, :2] - at) ** 2, axis=1) / 0.003**2
+        return top - 0.5 * xy - 0.5 * (hyps[:, 2] / np.deg2rad(5.0)) ** 2
+
+    belief.mesh_log_b = np.stack([peaked(b, 0.0), *(peaked(a, -0.5) for _ in range(3))])
+    np.testing.assert_allclose(belief.placement_peak()[:2], a, atol=1e-3)
+    # With one of the three, B's class is the likelier and the grasps go to B.
+    belief.mesh_log_b = belief.mesh_log_b[:2]
+    np.testing.assert_allclose(belief.placement_peak()[:2], b, atol=1e-3)
