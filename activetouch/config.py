@@ -111,6 +111,10 @@ class RecognitionConfig:
     # likelier than large ones, so a look-alike turned far to hide its difference pays for it.
     pose_prior_sigma_m: float = 0.0
     pose_prior_sigma_deg: float = 0.0
+    # Between grasps the object may slide on the table (a lone finger pushes a free-standing
+    # object): before each grasp after the first, the placement belief spreads by a Gaussian
+    # of this standard deviation in x and y (0: the object stays where it stood).
+    pose_drift_m: float = 0.0
     # Grasp where the object is believed to stand: each grasp's wrist pose is its training
     # pose placed where the mesh's term of the pose belief says the object stands after the
     # grasps so far (`PoseBelief.placement_peak`), not on the nominal placement, so a

@@ -53,6 +53,7 @@ _MAY_BE_ZERO = (
     "prior_sigma_m",
     "prior_sigma_deg",
     "grasps_weight",
+    "drift_m",
 )
 
 
@@ -72,6 +73,7 @@ class PoseParams:
     prior_sigma_m: float = _DEFAULTS.pose_prior_sigma_m
     prior_sigma_deg: float = _DEFAULTS.pose_prior_sigma_deg
     grasps_weight: float = _DEFAULTS.pose_grasps_weight
+    drift_m: float = _DEFAULTS.pose_drift_m
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -354,6 +356,28 @@ class PoseEstimate:
         return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
 
+def drifted(log_b: np.ndarray, hyps: np.ndarray, sigma_m: float) -> np.ndarray:
+    """(K, H) the belief `log_b` over the grid `hyps` (`pose_grid` order) after the object
+    may have slid on the table by a Gaussian of `sigma_m` in x and y: each class's
+    probability spread over the neighbouring placements of each yaw (mass the grid cannot
+    hold is lost: the object is off it). No placement falls under 1e-300 of its class's best,
+    so later grasps can still bring one back."""
+    if sigma_m <= 0:
+        return log_b
+    # deferred: scipy.ndimage is loaded only by a belief that drifts
+    from scipy import ndimage
+
+    axes = [np.unique(hyps[:, i]) for i in range(3)]
+    step = axes[0][1] - axes[0][0] if len(axes[0]) > 1 else 0.0
+    if step <= 0:
+        return log_b
+    top = log_b.max(axis=1, keepdims=True)
+    p = np.exp(log_b - top).reshape(len(log_b), *(len(a) for a in axes))
+    s = sigma_m / step
+    q = ndimage.gaussian_filter(p, sigma=(0.0, s, s, 0.0), mode="constant", truncate=3.0)
+    return np.log(np.maximum(q.reshape(len(log_b), -1), 1e-300)) + top
+
+
 def mean_and_spread(log_b: np.ndarray, hyps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(3,) posterior mean and (3,) standard deviation of the hypotheses `hyps` (H, 3) under
     one class's log belief `log_b` (H,)."""
@@ -457,8 +481,13 @@ class PoseBelief:
         self._nominal = int(np.flatnonzero(np.all(self.hyps == 0.0, axis=1))[0])  # h = 0
         # The mesh's term alone: where the object stands by geometry (`placement_peak`).
         self.mesh_log_b = self.log_b.copy()
+        self._grasps = 0  # weighed so far
 
     def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
+        if self._grasps and self.params.drift_m > 0:  # it may have slid since the last
+            self.log_b = drifted(self.log_b, self.hyps, self.params.drift_m)
+            self.mesh_log_b = drifted(self.mesh_log_b, self.hyps, self.params.drift_m)
+        self._grasps += 1
         contacts, free = grasp_points(grasp, pose, self.free_sites)
         mesh = grasp_log_likelihood(self.shapes, self.hyps, contacts, free, self.params, self.lifts)
         self.mesh_log_b = self.mesh_log_b + mesh

@@ -17,6 +17,7 @@ from activetouch.recognition.pose_belief import (
     PoseBelief,
     PoseParams,
     class_lifts,
+    drifted,
     grasp_log_likelihood,
     in_object_frames,
     peak_offset,
@@ -288,3 +289,31 @@ def test_the_grasps_go_where_most_of_the_likely_classes_have_the_object(box):
     # With one of the three, B's class is the likelier and the grasps go to B.
     belief.mesh_log_b = belief.mesh_log_b[:2]
     np.testing.assert_allclose(belief.placement_peak()[:2], b, atol=1e-3)
+
+
+def test_a_belief_that_drifts_spreads_each_class_over_the_neighbouring_placements():
+    hyps = pose_grid(PoseParams())  # +-3 steps in x and y
+    centre = np.flatnonzero(np.all(hyps == 0.0, axis=1))[0]
+    log_b = np.full((2, len(hyps)), -np.inf)
+    log_b[0, centre], log_b[1] = 0.0, -3.0  # class 1: even, 3 nats under class 0's peak
+    out = drifted(log_b, hyps, 0.01)
+    p = np.exp(out[0])
+    # One grid step of spread: the mass moves in x and y, not in yaw, and stays on the grid.
+    assert p.sum() == pytest.approx(1.0, abs=1e-9)
+    assert p[centre] == pytest.approx(_gauss(0) ** 2, rel=1e-9)
+    beside = np.flatnonzero(np.all(np.isclose(hyps, [0.01, 0.0, 0.0]), axis=1))[0]
+    assert p[beside] == pytest.approx(_gauss(1) * _gauss(0), rel=1e-9)
+    assert p[hyps[:, 2] != 0.0].max() < 1e-290  # the floor that keeps every class alive
+    # An even class stays even where the whole spread is on the grid; at a corner it loses
+    # what would leave the grid (the object would be off it).
+    assert out[1][centre] == pytest.approx(-3.0, abs=1e-9)
+    corner = np.flatnonzero(np.all(np.isclose(hyps, [0.03, 0.03, 0.0]), axis=1))[0]
+    edge = sum(_gauss(k) for k in range(-3, 1))  # the side of the Gaussian on the grid
+    assert out[1][corner] == pytest.approx(-3.0 + 2 * np.log(edge), abs=1e-9)
+    np.testing.assert_array_equal(drifted(log_b, hyps, 0.0), log_b)
+
+
+def _gauss(k: int) -> float:
+    """Weight at k steps of a Gaussian of one step's sigma, cut at 3 steps."""
+    w = np.exp(-0.5 * np.arange(-3, 4) ** 2)
+    return float(w[k + 3] / w.sum())
