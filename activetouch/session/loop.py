@@ -460,8 +460,8 @@ class RecognitionSession:
             return Pose.from_array(self._poses[pose_id])
         return Pose.from_array(pose_at_offset(self._poses[pose_id], self._offset))
 
-    def _grasp_at(self, pose_id: int) -> tuple[Grasp, Pose]:
-        pose = self._target(pose_id)
+    def _grasp_at(self, pose_id: int, pose: Pose) -> Grasp:
+        """Grasp at wrist pose `pose` (object frame) with training pose `pose_id`'s preshape."""
         preshape = float(self._preshapes[pose_id])
         self._hand(self.hand.open)
         self._hand(lambda: self.hand.preshape(preshape))  # as training grasped here
@@ -478,7 +478,7 @@ class RecognitionSession:
             grasp = above_thresholds(grasp, self._thresholds)
         if self.support_z is not None:
             grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)
-        return grasp, pose
+        return grasp
 
     def _unreachable(self, res: RecognitionResult) -> list[int]:
         """The model's poses the wrist says it cannot reach (none without `reachable`)."""
@@ -630,10 +630,11 @@ class RecognitionSession:
 
         def attempt(pose_id: int) -> bool:
             """Grasp at `pose_id`; an unreachable pose is skipped. True if it was grasped."""
+            pose = self._target(pose_id)
             if rec is not None:
-                rec.wrist_goal(len(res.labels) + 1, pose_id, self._target(pose_id).as_array())
+                rec.wrist_goal(len(res.labels) + 1, pose_id, pose.as_array())
             try:
-                grasp, pose = self._grasp_at(pose_id)
+                grasp = self._grasp_at(pose_id, pose)
             except UnreachableError as e:
                 skip(pose_id, e)
                 return False

@@ -448,10 +448,10 @@ def test_the_grasp_likelihood_belief_is_what_the_session_reports_and_plans_on(
         )
         grasp_at = session._grasp_at
 
-        def recording(pose_id):
-            g, pose = grasp_at(pose_id)
+        def recording(pose_id, pose):
+            g = grasp_at(pose_id, pose)
             felt.append((g, pose))
-            return g, pose
+            return g
 
         session._grasp_at = recording  # type: ignore[method-assign]
         res = session.run()
