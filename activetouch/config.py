@@ -113,7 +113,9 @@ class RecognitionConfig:
     pose_prior_sigma_deg: float = 0.0
     # Between grasps the object may slide on the table (a lone finger pushes a free-standing
     # object): before each grasp after the first, the placement belief spreads by a Gaussian
-    # of this standard deviation in x and y (0: the object stays where it stood).
+    # of this standard deviation in x and y. 0 (the default): the object stays where it
+    # stood, as the paper's fixed objects; 0.01 for free-standing ones (hard library, nudged
+    # up to 1 cm per grasp: +10 points; the object fixed: -1.8, not significant; docs/benchmark.md).
     pose_drift_m: float = 0.0
     # Grasp where the object is believed to stand: each grasp's wrist pose is its training
     # pose placed where the mesh's term of the pose belief says the object stands after the
