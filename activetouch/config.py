@@ -588,6 +588,7 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
         out["recognition.pose_contact_offset_m"] = rc.pose_contact_offset_m
         out["recognition.pose_contact_sigma_m"] = rc.pose_contact_sigma_m
         out["recognition.pose_follow"] = rc.pose_follow
+        out["recognition.pose_drift_m"] = rc.pose_drift_m
     out["hand.type"] = cfg.hand.type
     return out
 
