@@ -81,7 +81,8 @@ class PoseParams:
             ok = isinstance(v, int | float) and np.isfinite(v)
             ok = ok and (v >= 0 if f.name in _MAY_BE_ZERO else v > 0)
             if not ok:
-                raise ConfigError(f"recognition.pose_{f.name} must be a number > 0, got {v!r}")
+                bound = ">= 0" if f.name in _MAY_BE_ZERO else "> 0"
+                raise ConfigError(f"recognition.pose_{f.name} must be a number {bound}, got {v!r}")
 
     @classmethod
     def from_config(cls, rc: RecognitionConfig) -> PoseParams:

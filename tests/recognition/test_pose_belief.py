@@ -43,8 +43,10 @@ def test_grid_covers_the_range_with_zero_in_it():
     assert g.shape == (5 * 5 * 5, 3)
     assert np.any(np.all(g == 0.0, axis=1))
     assert g[:, 0].max() == pytest.approx(0.02) and np.rad2deg(g[:, 2]).min() == pytest.approx(-15)
-    with pytest.raises(ConfigError, match="pose_step_m"):
+    with pytest.raises(ConfigError, match="pose_step_m must be a number > 0"):
         PoseParams(step_m=0.0)
+    with pytest.raises(ConfigError, match="pose_drift_m must be a number >= 0"):
+        PoseParams(drift_m=-0.01)
 
 
 def test_signed_distance_of_a_box(box):
