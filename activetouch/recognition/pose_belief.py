@@ -42,6 +42,7 @@ from activetouch.recognition.grasp_likelihood import (
     LikelihoodParams,
     finger_closure,
     poses_under_offsets,
+    softmax_belief,
 )
 
 _DEFAULTS = RecognitionConfig()
@@ -100,6 +101,11 @@ def pose_grid(p: PoseParams) -> np.ndarray:
     yaw = np.deg2rad(axis(p.range_deg, p.step_deg))
     g = np.stack(np.meshgrid(xy, xy, yaw, indexing="ij"), axis=-1).reshape(-1, 3)
     return g
+
+
+def grid_axes(hyps: np.ndarray) -> list[np.ndarray]:
+    """The dx, dy and yaw values of the grid `hyps` (`pose_grid` order), each ascending."""
+    return [np.unique(hyps[:, i]) for i in range(3)]
 
 
 def log_prior(hyps: np.ndarray, p: PoseParams) -> np.ndarray:
@@ -368,10 +374,10 @@ def drifted(log_b: np.ndarray, hyps: np.ndarray, sigma_m: float) -> np.ndarray:
     # deferred: scipy.ndimage is loaded only by a belief that drifts
     from scipy import ndimage
 
-    axes = [np.unique(hyps[:, i]) for i in range(3)]
-    step = axes[0][1] - axes[0][0] if len(axes[0]) > 1 else 0.0
-    if step <= 0:
+    axes = grid_axes(hyps)
+    if len(axes[0]) < 2:
         return log_b
+    step = axes[0][1] - axes[0][0]
     top = log_b.max(axis=1, keepdims=True)
     p = np.exp(log_b - top).reshape(len(log_b), *(len(a) for a in axes))
     s = sigma_m / step
@@ -382,8 +388,7 @@ def drifted(log_b: np.ndarray, hyps: np.ndarray, sigma_m: float) -> np.ndarray:
 def mean_and_spread(log_b: np.ndarray, hyps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(3,) posterior mean and (3,) standard deviation of the hypotheses `hyps` (H, 3) under
     one class's log belief `log_b` (H,)."""
-    w = np.exp(log_b - np.max(log_b))
-    w /= w.sum()
+    w = softmax_belief(log_b)
     mean = w @ hyps
     return mean, np.sqrt(np.maximum(0.0, w @ (hyps - mean) ** 2))
 
@@ -408,7 +413,7 @@ def peak_offset(log_b: np.ndarray, hyps: np.ndarray) -> np.ndarray:
     and its two neighbours (at most half a step); along one it has not (a round object's yaw)
     the posterior mean stands, which does not pick an edge of the grid by chance. Grasps
     placed on it land nearer where training grasped than on the grid's 1 cm."""
-    axes = [np.unique(hyps[:, i]) for i in range(3)]
+    axes = grid_axes(hyps)
     shape = tuple(len(a) for a in axes)
     lb = np.asarray(log_b, dtype=np.float64).reshape(-1)
     mean, sd = mean_and_spread(lb, hyps)
@@ -527,9 +532,7 @@ class PoseBelief:
         anyone = logsumexp(self.mesh_log_b, axis=0)
         if anyone[self._nominal] >= anyone.max() - NOMINAL_NATS:
             return np.zeros(3)  # where training grasped is as good as any: stay on it
-        per_class = logsumexp(self.mesh_log_b, axis=1)
-        w = np.exp(per_class - per_class.max())
-        w /= w.sum()
+        w = softmax_belief(logsumexp(self.mesh_log_b, axis=1))
         live = np.flatnonzero(w >= COALITION_WEIGHT)
         peaks = np.array([peak_offset(self.mesh_log_b[k], self.hyps) for k in live])
         scale = np.array([self.params.step_m, self.params.step_m, np.deg2rad(self.params.step_deg)])
