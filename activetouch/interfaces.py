@@ -279,6 +279,17 @@ class Hand(abc.ABC):
         itself)."""
         return False
 
+    def own_contact_thresholds(self) -> np.ndarray | None:
+        """(n_sensors,) the thresholds the hand itself counts contact over (its configuration
+        or tactile calibration; never those of `set_contact_thresholds`), sensor units above
+        the zero offset. None: this hand does not tell (or senses no pressure)."""
+        return None
+
+    def sensor_sites(self) -> np.ndarray | None:
+        """(n_sensors, 3) where each sensor is now, in the hand frame, at the joint angles the
+        hand reports (as a grasp's contacts are placed). None: this hand cannot tell."""
+        return None
+
     @abc.abstractmethod
     def stop(self) -> None:
         """Halt the fingers now, from any thread, also during `guarded_close`; motion commands
@@ -384,6 +395,12 @@ class HandWrapper(Hand):
 
     def sensor_flags(self) -> dict[int, str]:
         return self.inner.sensor_flags()
+
+    def own_contact_thresholds(self) -> np.ndarray | None:
+        return self.inner.own_contact_thresholds()
+
+    def sensor_sites(self) -> np.ndarray | None:
+        return self.inner.sensor_sites()
 
     def stop(self) -> None:
         self.inner.stop()

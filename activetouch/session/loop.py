@@ -233,6 +233,31 @@ def noise_thresholds(rest: RestLevels, k: float) -> np.ndarray:
     return rest.mean + float(k) * sigma
 
 
+def mean_thresholds(rest: RestLevels, k: float, n: int, own: np.ndarray) -> np.ndarray:
+    """Per-sensor thresholds for the mean of `n` readings: the rest level plus `k` times the
+    mean's sigma (a sensor's sigma over sqrt(n), at least the median's, as in
+    `noise_thresholds`), never under the hand's own threshold `own`."""
+    sigma = np.maximum(rest.std, float(np.median(rest.std))) / np.sqrt(max(1, int(n)))
+    return np.maximum(rest.mean + float(k) * sigma, own)
+
+
+def mean_contacts(
+    grasp: Grasp, pressures: np.ndarray, thresholds: np.ndarray, sites: np.ndarray
+) -> Grasp:
+    """`grasp` with its contacts decided on the mean of the (n, sensors) `pressures` read
+    after the close: the sensors whose mean is over `thresholds`, at `sites` (sensors, 3),
+    with their mean pressures; the finger angles and preshape stay the close's."""
+    mean = np.asarray(pressures, dtype=np.float64).mean(axis=0)
+    ids = np.flatnonzero(mean > thresholds).astype(np.int64)
+    return Grasp(
+        sensor_ids=ids,
+        xyz=np.asarray(sites, dtype=np.float64)[ids].reshape(-1, 3),
+        pressures=mean[ids],
+        finger_angles=grasp.finger_angles,
+        preshape=grasp.preshape,
+    )
+
+
 def display_label(label: str) -> str:
     return label if label != NO_LABEL else "nothing (no triangle felt)"
 
@@ -386,6 +411,16 @@ class RecognitionSession:
                 f"session.confirm_readings must be in 0..40 (readings at 40 Hz), got "
                 f"{cfg.confirm_readings}"
             )
+        if not 0 <= cfg.average_readings <= 40:
+            raise ConfigError(
+                f"session.average_readings must be in 0..40 (readings at 40 Hz), got "
+                f"{cfg.average_readings}"
+            )
+        if cfg.average_readings and cfg.confirm_readings:
+            raise ConfigError(
+                "session.average_readings and session.confirm_readings each decide the contacts "
+                "after a close: set one of them to 0"
+            )
         check_model_hand(model, hand)
         self.hand, self.wrist, self.model, self.policy = hand, wrist, model, policy
         self.cfg, self.rng = cfg, rng
@@ -409,6 +444,8 @@ class RecognitionSession:
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
+        # With `session.average_readings`: the thresholds for the mean of those readings.
+        self._mean_thresholds: np.ndarray | None = None
 
     def _read_at_rest(self) -> RestLevels:
         """`session.rest_readings` distinct hand states (new stamps), the hand open; a hand
@@ -428,17 +465,44 @@ class RecognitionSession:
         ids = np.array(sorted(why), dtype=np.int64)
         self._masked = ids
         self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
-        self._thresholds = None
+        self._thresholds = self._mean_thresholds = None
         if rest.readings > 1:
             thr = noise_thresholds(rest, self.cfg.noise_k)
             self.hand.set_contact_thresholds(thr.tolist())
             self._thresholds = thr
+            self._mean_thresholds = self._averaging_thresholds(rest)
         if why:
             log.warning(
                 "sensors ignored for this recognition: %s",
                 "; ".join(f"{i} {w}" for i, w in why.items()),
             )
         return why
+
+    def _averaging_thresholds(self, rest: RestLevels) -> np.ndarray | None:
+        """Thresholds for the mean of `session.average_readings` readings (None: off, or a
+        hand that does not tell its own thresholds or where its sensors are)."""
+        n = self.cfg.average_readings
+        if n < 1:
+            return None
+        own = self.hand.own_contact_thresholds()
+        if own is None or self.hand.sensor_sites() is None:
+            log.warning(
+                "session.average_readings=%d: this hand does not tell its own contact "
+                "thresholds or its sensors' sites; contacts are decided on the close's reading",
+                n,
+            )
+            return None
+        return mean_thresholds(rest, self.cfg.noise_k, n, np.asarray(own, dtype=np.float64))
+
+    def _averaged(self, grasp: Grasp) -> Grasp:
+        """The close's contacts decided again on the mean of new readings of the closed hand
+        (`mean_contacts`), the sensors placed where the hand says they are."""
+        assert self._mean_thresholds is not None
+        pressures, _ = read_states(self.hand, self.cfg.average_readings, timeout_s=2.0)
+        sites = self.hand.sensor_sites()
+        if not len(pressures) or sites is None:
+            return grasp
+        return mean_contacts(grasp, pressures, self._mean_thresholds, np.asarray(sites))
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
         """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
@@ -468,13 +532,16 @@ class RecognitionSession:
         self.wrist.move_to(pose)  # raises UnreachableError
         grasp = self._hand(self.hand.guarded_close)
         assert grasp is not None
-        if self.cfg.confirm_readings > 0 and len(grasp.sensor_ids):
+        averaged = self._mean_thresholds is not None
+        if averaged:
+            grasp = self._averaged(grasp)
+        elif self.cfg.confirm_readings > 0 and len(grasp.sensor_ids):
             states = read_states(self.hand, self.cfg.confirm_readings, timeout_s=2.0)
             grasp = confirmed(grasp, *states, self._thresholds)
         self._hand(self.hand.open)
         if self._masked.size:
             grasp = without_sensors(grasp, self._masked)
-        if self._thresholds is not None:
+        if self._thresholds is not None and not averaged:
             grasp = above_thresholds(grasp, self._thresholds)
         if self.support_z is not None:
             grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)

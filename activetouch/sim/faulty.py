@@ -74,6 +74,14 @@ class FaultyReadings:
             preshape=grasp.preshape,
         )
 
+    def sensor_sites(self) -> np.ndarray:
+        """Where the hand believes its sensors are: at the finger angles it reports, which the
+        run's finger offsets put off the true ones."""
+        w = self.world  # type: ignore[attr-defined]
+        return w.sensor_sites_hand(
+            np.asarray(w.proximal, dtype=np.float64) + self.faulty.finger_offset
+        )
+
     def _offset_fingers(self, grasp: Grasp) -> Grasp:
         """`grasp` as a hand whose finger angles read off by the run's offsets reports it."""
         off = self.faulty.finger_offset

@@ -207,6 +207,14 @@ class TwinHand(Hand):
         self.thresholds = np.maximum(t, self._threshold)
         return True
 
+    def own_contact_thresholds(self) -> np.ndarray | None:
+        if self.cfg.sensing == "stall":  # the ReFlex SF: no pressures to threshold
+            return None
+        return np.full(self._n_sensors, self._threshold)
+
+    def sensor_sites(self) -> np.ndarray:
+        return self.world.sensor_sites_hand()
+
     def stop(self) -> None:
         """Halt the fingers: a running guarded close ends at its next step (it raises), and
         closing or preshaping is refused until `clear_stop()`."""

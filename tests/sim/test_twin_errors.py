@@ -310,3 +310,75 @@ def test_spurious_contacts_do_not_last_a_touch_does(box):
         assert g.sensor_ids.size >= 2
         s = twin.hand.state()
         assert confirmed(g, s.pressures[None], s.contact[None], None) is g
+
+
+def test_contacts_decided_on_the_mean_of_the_readings_after_the_close():
+    from activetouch.interfaces import Grasp
+    from activetouch.session.loop import RestLevels, mean_contacts, mean_thresholds
+
+    std = np.full(38, 10.0)
+    std[3] = 2.0  # a quiet sensor: still held to the median sigma
+    rest = RestLevels(np.full(38, 1.0), std, np.zeros(38), 20)
+    own = np.full(38, 20.0)
+    # rest 1 + 5 * 10 / sqrt(4) = 26 over the hand's own 20; with 100 readings the own 20
+    thr = mean_thresholds(rest, 5.0, 4, own)
+    np.testing.assert_allclose(thr, np.full(38, 26.0))
+    np.testing.assert_allclose(mean_thresholds(rest, 5.0, 100, own), own)
+    g = Grasp(
+        sensor_ids=np.array([4, 9]),
+        xyz=np.zeros((2, 3)),
+        pressures=np.array([60.0, 70.0]),
+        finger_angles=np.array([1.0, 1.1, 1.2]),
+        preshape=0.3,
+    )
+    p = np.zeros((4, 38))
+    p[:, 4] = [40.0, 50.0, 30.0, 40.0]  # the close's contact: mean 40
+    p[:, 5] = [20.0, 35.0, 25.0, 24.0]  # its neighbour, under 52 in each: mean 26 is not over 26
+    p[:, 6] = [30.0, 27.0, 29.0, 30.0]  # another neighbour: mean 29
+    p[:, 9] = [80.0, 0.0, 0.0, 0.0]  # a spike the close caught: mean 20
+    sites = np.arange(38 * 3, dtype=float).reshape(38, 3)
+    out = mean_contacts(g, p, thr, sites)
+    assert out.sensor_ids.tolist() == [4, 6]
+    np.testing.assert_allclose(out.pressures, [40.0, 29.0])
+    np.testing.assert_allclose(out.xyz, sites[[4, 6]])
+    np.testing.assert_array_equal(out.finger_angles, g.finger_angles)
+    assert out.preshape == 0.3
+
+
+def test_averaged_contacts_under_heavy_noise_come_back_to_the_quiet_hands(box):
+    """Under noise +10 a finger stops on its first noisy reading over rest + 5 sigma and the
+    close reports fewer sensors than the quiet twin's; decided on the mean of 8 readings of
+    the closed hand (at the sites the hand tells), they are the quiet twin's again."""
+    from activetouch.calibration.tactile import read_states
+    from activetouch.interfaces import Pose
+    from activetouch.planning.grid import training_grid
+    from activetouch.session.loop import (
+        mean_contacts,
+        mean_thresholds,
+        noise_thresholds,
+        rest_levels,
+    )
+
+    nominal = load_config(None, [])
+    noisy = load_config(None, ["sim.fault_noise_std=10"])
+    grid = training_grid(np.array([0.10, 0.06, 0.08]), nominal.grid)
+    pose = Pose.from_array(grid.poses[len(grid) // 2])
+    with open_twin(box, nominal.sim, seed=4) as twin:
+        twin.wrist.move_to(pose)
+        quiet = set(twin.hand.guarded_close().sensor_ids.tolist())
+    close, averaged = [], []
+    for seed in range(4):
+        with open_twin(box, noisy.sim, seed=seed) as twin:
+            hand = twin.hand
+            rest = rest_levels(*read_states(hand, 20))
+            hand.set_contact_thresholds(noise_thresholds(rest, 5.0).tolist())
+            twin.wrist.move_to(pose)
+            g = hand.guarded_close()
+            np.testing.assert_allclose(hand.sensor_sites()[g.sensor_ids], g.xyz)
+            thr = mean_thresholds(rest, 5.0, 8, hand.own_contact_thresholds())
+            m = mean_contacts(g, read_states(hand, 8)[0], thr, hand.sensor_sites())
+            close.append(len(quiet ^ set(g.sensor_ids.tolist())))
+            averaged.append(len(quiet ^ set(m.sensor_ids.tolist())))
+    assert len(quiet) >= 3
+    # measured: the close differs from the quiet set by 1-3 sensors, the mean by none
+    assert sum(close) >= 4 and max(averaged) == 0, (close, averaged)

@@ -789,6 +789,15 @@ class BarrettBH8Hand(Hand):
         self._thresholds = np.maximum(t, self.cfg.contact_threshold)
         return True
 
+    def own_contact_thresholds(self) -> np.ndarray:
+        return np.full(kinematics.N_CELLS, float(self.cfg.contact_threshold))
+
+    def sensor_sites(self) -> np.ndarray | None:
+        r = self._latest
+        if r is None:
+            return None
+        return kinematics.cell_positions(r.spread, r.inner, r.outer)
+
     def open(self) -> None:
         """Fingers to their open stop (CMD OPEN), spread unchanged; allowed while stopped."""
         self._require_motion("open", check_stop=False)

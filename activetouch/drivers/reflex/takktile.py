@@ -901,6 +901,15 @@ class ReflexTakktileHand(Hand):
     def clear_stop(self) -> None:
         self.stop_latch.clear()
 
+    def own_contact_thresholds(self) -> np.ndarray:
+        return self.thresholds.copy()
+
+    def sensor_sites(self) -> np.ndarray | None:
+        r = self._latest
+        if r is None:
+            return None
+        return sensor_positions(DEFAULT_GEOMETRY, float(r.motor[3]), r.proximal, r.distal)
+
     def state(self) -> ReflexHandState:
         r = self._latest
         if r is None:

@@ -110,6 +110,8 @@ def test_guarded_close_stops_each_finger_on_its_own_contact():
         assert st.outer[0] > 0.6 / 3 + 0.2 - 0.01
         # Reported at the pad's cells on F1's outer link (hand frame, within the hand's reach).
         assert np.all(np.isfinite(g.xyz)) and np.all(np.linalg.norm(g.xyz, axis=1) < 0.25)
+        np.testing.assert_allclose(rig.hand.sensor_sites()[g.sensor_ids], g.xyz, atol=1e-3)
+        assert rig.hand.own_contact_thresholds().shape == (96,)
         assert np.all(g.pressures >= rig.cfg.contact_threshold)
         # None pressed through to a stall: the fingers stopped on contact.
         j = rig.emu.joints()

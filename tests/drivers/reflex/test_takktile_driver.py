@@ -120,6 +120,9 @@ def test_guarded_close_on_emulator(hand, emulator):
     assert not (set(g.sensor_ids.tolist()) & set(range(18, 27)))  # the thumb touched nothing
     assert g.xyz.shape == (g.n_contacts, 3)
     assert np.all(g.pressures > 20)
+    # The sites the hand tells (for contacts decided again on later readings) are the grasp's.
+    np.testing.assert_allclose(hand.sensor_sites()[g.sensor_ids], g.xyz, atol=1e-3)
+    np.testing.assert_array_equal(hand.own_contact_thresholds(), np.full(38, 20.0))
     # Proximal angles follow the emulated fingers: held where each met the object.
     assert g.finger_angles[0] == pytest.approx(1.0 / 1.25, abs=0.02)
     assert g.finger_angles[1] == pytest.approx(1.5 / 1.25, abs=0.02)
