@@ -330,10 +330,10 @@ class SessionConfig:
     # counts only if its sensor reads contact in all of them (a spike lasts one packet, a touch
     # stays). 0: the close's own reading alone.
     confirm_readings: int = 0
-    # After each close, the fingers still on the object: the contacts are decided on the mean
-    # of this many new readings, over the hand's own threshold or rest + noise_k sigma / sqrt(n),
-    # whichever is higher (noise averages out, a touch stays; a finger stopped on a noisy
-    # reading still reports the neighbours it presses). 0: the close's own reading. Needs a
+    # Where the noise at rest lifts the thresholds over the hand's own (the close's reading then
+    # misses light contacts): after each close, the fingers still on the object, the contacts
+    # are decided on the mean of this many new readings, over the hand's own threshold or
+    # rest + noise_k sigma / sqrt(n), whichever is higher. 0: the close's own reading. Needs a
     # hand that tells its own thresholds and its sensors' sites; replaces confirm_readings.
     average_readings: int = 0
 

@@ -470,7 +470,7 @@ class RecognitionSession:
             thr = noise_thresholds(rest, self.cfg.noise_k)
             self.hand.set_contact_thresholds(thr.tolist())
             self._thresholds = thr
-            self._mean_thresholds = self._averaging_thresholds(rest)
+            self._mean_thresholds = self._averaging_thresholds(rest, thr)
         if why:
             log.warning(
                 "sensors ignored for this recognition: %s",
@@ -478,9 +478,11 @@ class RecognitionSession:
             )
         return why
 
-    def _averaging_thresholds(self, rest: RestLevels) -> np.ndarray | None:
-        """Thresholds for the mean of `session.average_readings` readings (None: off, or a
-        hand that does not tell its own thresholds or where its sensors are)."""
+    def _averaging_thresholds(self, rest: RestLevels, noise: np.ndarray) -> np.ndarray | None:
+        """Thresholds for the mean of `session.average_readings` readings, where the noise
+        thresholds at rest (`noise`) lift the median sensor over the hand's own: the close's
+        reading then misses light contacts. None: off, a quiet hand (its close reads as in
+        training), or a hand that does not tell its own thresholds or its sensors' sites."""
         n = self.cfg.average_readings
         if n < 1:
             return None
@@ -492,7 +494,10 @@ class RecognitionSession:
                 n,
             )
             return None
-        return mean_thresholds(rest, self.cfg.noise_k, n, np.asarray(own, dtype=np.float64))
+        own = np.asarray(own, dtype=np.float64)
+        if np.median(noise) <= np.median(own):
+            return None
+        return mean_thresholds(rest, self.cfg.noise_k, n, own)
 
     def _averaged(self, grasp: Grasp) -> Grasp:
         """The close's contacts decided again on the mean of new readings of the closed hand

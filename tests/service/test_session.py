@@ -16,6 +16,7 @@ from activetouch.recognition.grasp_likelihood import softmax_belief
 from activetouch.session.local import recognize_in_twin
 from activetouch.session.loop import (
     NO_LABEL,
+    Progress,
     RecognitionSession,
     belief_table_of,
     display_label,
@@ -560,3 +561,33 @@ def test_with_pose_follow_the_grasps_go_where_the_object_is_believed_to_stand(
         np.testing.assert_allclose(nominal, off, atol=1e-9)  # every grasp the error away
         assert off > 0.01 and np.all(followed[1:] < nominal[1 : len(followed)])
         assert followed[1:].mean() < 0.5 * off
+
+
+def test_under_heavy_noise_the_contacts_are_decided_on_the_mean_of_the_closed_hand(
+    trained_home, small_model
+):
+    # Noise +10 lifts every threshold to about 51 units: the close's own reading keeps only
+    # firm contacts. Decided on the mean of 8 readings of the closed hand, the grasps at the
+    # same poses report more of the sensors they press. A quiet hand (thresholds under the
+    # hand's own 20) is read as before: the same recognition, grasp for grasp.
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+
+    def run(noise: float, readings: int) -> tuple[list[int], list[int], list[str]]:
+        cfg = small_config()
+        cfg.sim.fault_noise_std = noise
+        cfg.session.average_readings = readings
+        seen: list[Progress] = []
+        res = recognize_in_twin(
+            small_model, lib, "cup", "random", 6, cfg, max_moves=4, on_progress=seen.append
+        )
+        return res.pose_ids, [p.n_contacts for p in seen], res.labels
+
+    assert run(0.0, 8) == run(0.0, 0)
+    poses, close, _ = run(10.0, 0)
+    poses_avg, averaged, _ = run(10.0, 8)
+    assert poses_avg == poses  # the random policy's draws do not depend on the contacts
+    assert sum(averaged) > sum(close), (close, averaged)
+    with pytest.raises(ConfigError, match="set one of them to 0"):
+        cfg = small_config()
+        cfg.session.average_readings, cfg.session.confirm_readings = 4, 2
+        recognize_in_twin(small_model, lib, "cup", "random", 6, cfg, max_moves=1)
