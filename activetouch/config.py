@@ -48,7 +48,11 @@ Profile = Literal["robust", "paper"]
 # triangles, the object pose taken as known.
 PROFILES: dict[str, dict[str, Any]] = {
     "robust": {},
-    "paper": {"recognition.belief": "histogram", "observation.cells_from": "setting"},
+    "paper": {
+        "recognition.belief": "histogram",
+        "observation.cells_from": "setting",
+        "session.average_readings": 0,
+    },
 }
 
 
@@ -335,7 +339,7 @@ class SessionConfig:
     # are decided on the mean of this many new readings, over the hand's own threshold or
     # rest + noise_k sigma / sqrt(n), whichever is higher. 0: the close's own reading. Needs a
     # hand that tells its own thresholds and its sensors' sites; replaces confirm_readings.
-    average_readings: int = 0
+    average_readings: int = 16
 
 
 @dataclass
@@ -595,6 +599,7 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
         out["recognition.pose_contact_sigma_m"] = rc.pose_contact_sigma_m
         out["recognition.pose_follow"] = rc.pose_follow
         out["recognition.pose_drift_m"] = rc.pose_drift_m
+    out["session.average_readings"] = cfg.session.average_readings
     out["hand.type"] = cfg.hand.type
     return out
 

@@ -233,6 +233,11 @@ def noise_thresholds(rest: RestLevels, k: float) -> np.ndarray:
     return rest.mean + float(k) * sigma
 
 
+# A simulated hand's readings come at once; the session counts each as a ReFlex packet (40 Hz)
+# of robot time where it waits for them.
+SIM_READING_PERIOD_S = 0.025
+
+
 def mean_thresholds(rest: RestLevels, k: float, n: int, own: np.ndarray) -> np.ndarray:
     """Per-sensor thresholds for the mean of `n` readings: the rest level plus `k` times the
     mean's sigma (a sensor's sigma over sqrt(n), at least the median's, as in
@@ -503,7 +508,14 @@ class RecognitionSession:
         """The close's contacts decided again on the mean of new readings of the closed hand
         (`mean_contacts`), the sensors placed where the hand says they are."""
         assert self._mean_thresholds is not None
+        t = time.perf_counter()
         pressures, _ = read_states(self.hand, self.cfg.average_readings, timeout_s=2.0)
+        # The robot waits for these readings: wall time, or for a simulated hand (whose
+        # readings come at once) a reading period each.
+        if self.hand.robot_seconds is None:
+            self._grasp_s += time.perf_counter() - t
+        else:
+            self._grasp_s += len(pressures) * SIM_READING_PERIOD_S
         sites = self.hand.sensor_sites()
         if not len(pressures) or sites is None:
             return grasp
