@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import zenoh
 
 from activetouch.clock import SYSTEM_CLOCK, Clock
@@ -52,6 +53,7 @@ from activetouch.transport.messages import (
     MoveWristRequest,
     PreshapeRequest,
     SensorFlagsMsg,
+    SensorSitesMsg,
     SimPlaceRequest,
     SimPlaceResult,
     ThresholdsRequest,
@@ -142,6 +144,7 @@ class HandNode(ServedNode):
                     flags={str(i): f for i, f in hand.sensor_flags().items()}
                 ),
             ),
+            "sensor_sites": Op(k.hand_sensor_sites, Empty, lambda _r: self._sensor_sites()),
             # At once, beside a running grasp: the close ends within one control step.
             "stop": Op(k.hand_stop, Empty, lambda _r: hand.stop(), fast=True),
             "clear_stop": Op(k.hand_clear_stop, Empty, lambda _r: hand.clear_stop(), fast=True),
@@ -168,6 +171,13 @@ class HandNode(ServedNode):
                 field="thresholds",
             )
         return self.hand.set_contact_thresholds(req.thresholds)
+
+    def _sensor_sites(self) -> SensorSitesMsg:
+        sites, own = self.hand.sensor_sites(), self.hand.own_contact_thresholds()
+        return SensorSitesMsg(
+            sites=[] if sites is None else [tuple(map(float, p)) for p in np.asarray(sites)],
+            own_thresholds=[] if own is None else [float(t) for t in np.asarray(own)],
+        )
 
     def _what(self) -> str:
         return ", ".join(w for w in (self.device, f"{self.n_sensors} sensors") if w)

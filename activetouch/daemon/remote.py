@@ -14,6 +14,7 @@ import time
 from collections.abc import Sequence
 from typing import Any, Generic
 
+import numpy as np
 import zenoh
 
 from activetouch.daemon.liveliness import Coalesced, tokens_left
@@ -48,6 +49,7 @@ from activetouch.transport.messages import (
     PreshapeRequest,
     Reply,
     SensorFlagsMsg,
+    SensorSitesMsg,
     SimPlaceRequest,
     SimPlaceResult,
     ThresholdsRequest,
@@ -338,6 +340,25 @@ class RemoteHand(RemoteDevice, Hand):
     def sensor_flags(self) -> dict[int, str]:
         msg = self._call("sensor_flags", self.keys.hand_sensor_flags, Empty(), SensorFlagsMsg)
         return {int(k): v for k, v in msg.flags.items()}
+
+    def _sensor_sites(self) -> SensorSitesMsg:
+        """The node's ``hand/sensor_sites`` (a node from before it: neither list)."""
+        msg = self._call(
+            "sensor_sites", self.keys.hand_sensor_sites, Empty(), SensorSitesMsg, missing=None
+        )
+        return SensorSitesMsg() if msg is None else msg
+
+    def sensor_sites(self) -> np.ndarray | None:
+        sites = self._sensor_sites().sites
+        if len(sites) != self.n_sensors:
+            return None
+        return np.array(sites, dtype=np.float64).reshape(-1, 3)
+
+    def own_contact_thresholds(self) -> np.ndarray | None:
+        own = self._sensor_sites().own_thresholds
+        if len(own) != self.n_sensors:
+            return None
+        return np.array(own, dtype=np.float64)
 
     def preshape(self, angle: float) -> None:
         self._call(

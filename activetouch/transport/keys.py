@@ -13,6 +13,7 @@ widen a subscription or a query to other robots.
 | hand/mask | queryable (sensors to ignore) | MaskRequest -> Reply[bool] |
 | hand/thresholds | queryable (noise thresholds) | ThresholdsRequest -> Reply[bool] |
 | hand/sensor_flags | queryable (tactile calibration flags) | Empty -> Reply[SensorFlagsMsg] |
+| hand/sensor_sites | queryable (sites now, own thresholds) | Empty -> Reply[SensorSitesMsg] |
 | hand/guarded_close | queryable | Empty -> Reply[GraspMsg] |
 | hand/stop | queryable (served at once, beside a running grasp) | Empty -> Reply[None] |
 | hand/clear_stop | queryable | Empty -> Reply[None] |
@@ -115,6 +116,10 @@ class Keys:
     @property
     def hand_sensor_flags(self) -> str:
         return self._k("hand", "sensor_flags")
+
+    @property
+    def hand_sensor_sites(self) -> str:
+        return self._k("hand", "sensor_sites")
 
     @property
     def hand_guarded_close(self) -> str:

@@ -64,6 +64,7 @@ __all__ = [
     "RecognizeResult",
     "Reply",
     "SensorFlagsMsg",
+    "SensorSitesMsg",
     "SessionSummary",
     "SimPlaceRequest",
     "SimPlaceResult",
@@ -281,6 +282,15 @@ class SensorFlagsMsg(Message, kw_only=True):
     """Sensor id (as text) -> the flag the hand's tactile calibration gave it."""
 
     flags: dict[str, str] = {}
+
+
+class SensorSitesMsg(Message, kw_only=True):
+    """Where each sensor of the hand is now (hand frame, at the joint angles it reports; one
+    per sensor, `HandInfo.n_sensors`) and the thresholds the hand itself counts contact over
+    (sensor units, one per sensor). Either list empty: the hand does not tell."""
+
+    sites: Annotated[list[Vec3], msgspec.Meta(max_length=MAX_SENSORS)] = []
+    own_thresholds: Annotated[list[NonNegFloat], msgspec.Meta(max_length=MAX_SENSORS)] = []
 
 
 class MoveWristRequest(Message, kw_only=True):

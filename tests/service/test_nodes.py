@@ -557,6 +557,22 @@ def test_noise_thresholds_and_sensor_flags_cross_the_wire(
         remote_hand.set_contact_thresholds([1.0] * 5)
 
 
+def test_sensor_sites_and_own_thresholds_cross_the_wire(
+    remote_hand: RemoteHand, hand: RecordingHand
+) -> None:
+    # A hand that does not tell them gives None on the client (the session then reads its
+    # grasps as they are); one that does gives them as its node read them.
+    assert remote_hand.sensor_sites() is None
+    assert remote_hand.own_contact_thresholds() is None
+    sites = np.arange(38 * 3, dtype=np.float64).reshape(38, 3) / 1000.0
+    hand.sensor_sites = lambda: sites  # type: ignore[method-assign]
+    hand.own_contact_thresholds = lambda: np.full(38, 20.0)  # type: ignore[method-assign]
+    np.testing.assert_array_equal(remote_hand.sensor_sites(), sites)
+    np.testing.assert_array_equal(remote_hand.own_contact_thresholds(), np.full(38, 20.0))
+    hand.sensor_sites = lambda: sites[:5]  # type: ignore[method-assign]
+    assert remote_hand.sensor_sites() is None  # not one per sensor: not the hand's layout
+
+
 class WideHand(RecordingHand):
     """A hand with a BarrettHand's 96 sensors: records the masks and thresholds it is given;
     its grasp touches 5, 30 and 90."""
