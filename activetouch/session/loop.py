@@ -449,8 +449,9 @@ class RecognitionSession:
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
-        # With `session.average_readings`: the thresholds for the mean of those readings.
-        self._mean_thresholds: np.ndarray | None = None
+        # With `session.average_readings` engaged: the rest levels and the hand's own
+        # thresholds, from which the mean of the readings after each close is judged.
+        self._averaging: tuple[RestLevels, np.ndarray] | None = None
 
     def _read_at_rest(self) -> RestLevels:
         """`session.rest_readings` distinct hand states (new stamps), the hand open; a hand
@@ -470,12 +471,12 @@ class RecognitionSession:
         ids = np.array(sorted(why), dtype=np.int64)
         self._masked = ids
         self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
-        self._thresholds = self._mean_thresholds = None
+        self._thresholds, self._averaging = None, None
         if rest.readings > 1:
             thr = noise_thresholds(rest, self.cfg.noise_k)
             self.hand.set_contact_thresholds(thr.tolist())
             self._thresholds = thr
-            self._mean_thresholds = self._averaging_thresholds(rest, thr)
+            self._averaging = self._averaging_levels(rest, thr)
         if why:
             log.warning(
                 "sensors ignored for this recognition: %s",
@@ -483,11 +484,14 @@ class RecognitionSession:
             )
         return why
 
-    def _averaging_thresholds(self, rest: RestLevels, noise: np.ndarray) -> np.ndarray | None:
-        """Thresholds for the mean of `session.average_readings` readings, where the noise
-        thresholds at rest (`noise`) lift the median sensor over the hand's own: the close's
-        reading then misses light contacts. None: off, a quiet hand (its close reads as in
-        training), or a hand that does not tell its own thresholds or its sensors' sites."""
+    def _averaging_levels(
+        self, rest: RestLevels, noise: np.ndarray
+    ) -> tuple[RestLevels, np.ndarray] | None:
+        """`rest` and the hand's own thresholds, where the noise thresholds at rest (`noise`)
+        lift the median sensor over the hand's own: the close's reading then misses light
+        contacts, and the session judges the mean of `session.average_readings` readings.
+        None: off, a quiet hand (its close reads as in training), or a hand that does not tell
+        its own thresholds or its sensors' sites."""
         n = self.cfg.average_readings
         if n < 1:
             return None
@@ -502,14 +506,18 @@ class RecognitionSession:
         own = np.asarray(own, dtype=np.float64)
         if np.median(noise) <= np.median(own):
             return None
-        return mean_thresholds(rest, self.cfg.noise_k, n, own)
+        return rest, own
 
     def _averaged(self, grasp: Grasp) -> Grasp:
         """The close's contacts decided again on the mean of new readings of the closed hand
-        (`mean_contacts`), the sensors placed where the hand says they are."""
-        assert self._mean_thresholds is not None
+        (`mean_contacts`), the sensors placed where the hand says they are. A hand that gives
+        fewer readings within 2 s is judged on those (its thresholds for that many); none:
+        the close's grasp as it is."""
+        assert self._averaging is not None
+        rest, own = self._averaging
+        n = self.cfg.average_readings
         t = time.perf_counter()
-        pressures, _ = read_states(self.hand, self.cfg.average_readings, timeout_s=2.0)
+        pressures, _ = read_states(self.hand, n, timeout_s=2.0)
         # The robot waits for these readings: wall time, or for a simulated hand (whose
         # readings come at once) a reading period each.
         if self.hand.robot_seconds is None:
@@ -517,9 +525,12 @@ class RecognitionSession:
         else:
             self._grasp_s += len(pressures) * SIM_READING_PERIOD_S
         sites = self.hand.sensor_sites()
+        if len(pressures) < n:
+            log.warning("the hand gave %d of %d readings after the close", len(pressures), n)
         if not len(pressures) or sites is None:
             return grasp
-        return mean_contacts(grasp, pressures, self._mean_thresholds, np.asarray(sites))
+        thr = mean_thresholds(rest, self.cfg.noise_k, len(pressures), own)
+        return mean_contacts(grasp, pressures, thr, np.asarray(sites))
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
         """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
@@ -549,7 +560,7 @@ class RecognitionSession:
         self.wrist.move_to(pose)  # raises UnreachableError
         grasp = self._hand(self.hand.guarded_close)
         assert grasp is not None
-        averaged = self._mean_thresholds is not None
+        averaged = self._averaging is not None
         if averaged:
             grasp = self._averaged(grasp)
         elif self.cfg.confirm_readings > 0 and len(grasp.sensor_ids):
