@@ -591,3 +591,55 @@ def test_under_heavy_noise_the_contacts_are_decided_on_the_mean_of_the_closed_ha
         cfg = small_config()
         cfg.session.average_readings, cfg.session.confirm_readings = 4, 2
         recognize_in_twin(small_model, lib, "cup", "random", 6, cfg, max_moves=1)
+
+
+def test_a_hand_that_stops_streaming_after_the_close_is_judged_on_the_readings_it_gave(
+    trained_home, small_model, caplog
+):
+    # After each close this hand repeats one stamp (a stream gone quiet): the session gets
+    # one new reading, not 16, within its 2 s, says so, and judges that one reading against
+    # the thresholds for one, so no noise sensor passes for a contact.
+    from activetouch.interfaces import HandState, HandWrapper
+
+    class QuietAfterClose(HandWrapper):
+        frozen: HandState | None = None
+
+        def guarded_close(self) -> Grasp:
+            g = self.inner.guarded_close()
+            self.frozen = self.inner.state()
+            return g
+
+        def open(self) -> None:
+            self.frozen = None
+            self.inner.open()
+
+        def state(self) -> HandState:
+            return self.frozen if self.frozen is not None else self.inner.state()
+
+    cfg = small_config()
+    cfg.sim.fault_noise_std = 10.0
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    policy = make_policy(
+        "random", cfg.planner, small_model.observation, small_model.classifier.kernel()
+    )
+    with open_twin(lib.get("cup"), cfg.sim, seed=6) as twin:
+        hand = QuietAfterClose(twin.hand)
+        s = RecognitionSession(
+            hand,
+            twin.wrist,
+            small_model,
+            policy,  # type: ignore[arg-type]
+            type(cfg.session)(max_moves=2, confidence=1.1),
+            np.random.default_rng(0),
+        )
+        seen: list[Grasp] = []
+        close = s._averaged
+        s._averaged = lambda g: seen.append(close(g)) or seen[-1]  # type: ignore[method-assign]
+        with caplog.at_level("WARNING"):
+            s.run()
+        assert s._averaging is not None
+        rest, own = s._averaging
+    assert "gave 1 of 16 readings after the close" in caplog.text
+    one = np.maximum(rest.mean + 5.0 * np.maximum(rest.std, np.median(rest.std)), own)
+    for g in seen:
+        assert np.all(g.pressures > one[g.sensor_ids])  # one reading, one reading's thresholds
