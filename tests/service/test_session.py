@@ -103,23 +103,25 @@ class FlakyWrist:
         self.wrist.move_to(pose)
 
 
+def _random_session(hand, wrist, model, cfg, max_moves: int) -> RecognitionSession:
+    """A session with the random policy that never stops confident (runs its budget)."""
+    policy = make_policy("random", cfg.planner, model.observation, model.classifier.kernel())
+    return RecognitionSession(
+        hand,
+        wrist,
+        model,
+        policy,  # type: ignore[arg-type]
+        type(cfg.session)(max_moves=max_moves, confidence=1.1),
+        np.random.default_rng(0),
+    )
+
+
 def test_unreachable_poses_are_skipped_counted_and_not_retried(trained_home, small_model):
     cfg = small_config()
     lib = ObjectLibrary(paths.objects_dir(trained_home))
-    policy = make_policy(
-        "random", cfg.planner, small_model.observation, small_model.classifier.kernel()
-    )
     with open_twin(lib.get("cup"), cfg.sim, seed=0) as twin:
         arm = FlakyWrist(twin.wrist)
-        s = RecognitionSession(
-            twin.hand,
-            arm,
-            small_model,
-            policy,  # type: ignore[arg-type]
-            type(cfg.session)(max_moves=5, confidence=1.1),
-            np.random.default_rng(0),
-        )
-        res = s.run()
+        res = _random_session(twin.hand, arm, small_model, cfg, max_moves=5).run()
     assert res.moves == 5
     assert res.skipped >= 4
     assert arm.calls == res.moves + res.skipped
@@ -619,19 +621,8 @@ def test_a_hand_that_stops_streaming_after_the_close_is_judged_on_the_readings_i
     cfg = small_config()
     cfg.sim.fault_noise_std = 10.0
     lib = ObjectLibrary(paths.objects_dir(trained_home))
-    policy = make_policy(
-        "random", cfg.planner, small_model.observation, small_model.classifier.kernel()
-    )
     with open_twin(lib.get("cup"), cfg.sim, seed=6) as twin:
-        hand = QuietAfterClose(twin.hand)
-        s = RecognitionSession(
-            hand,
-            twin.wrist,
-            small_model,
-            policy,  # type: ignore[arg-type]
-            type(cfg.session)(max_moves=2, confidence=1.1),
-            np.random.default_rng(0),
-        )
+        s = _random_session(QuietAfterClose(twin.hand), twin.wrist, small_model, cfg, max_moves=2)
         seen: list[Grasp] = []
         close = s._averaged
         s._averaged = lambda g: seen.append(close(g)) or seen[-1]  # type: ignore[method-assign]
