@@ -794,8 +794,11 @@ class BarrettBH8Hand(Hand):
 
     def sensor_sites(self) -> np.ndarray | None:
         r = self._latest
-        if r is None:
-            return None
+        return None if r is None else self._sites(r)
+
+    @staticmethod
+    def _sites(r: Reading) -> np.ndarray:
+        """(96, 3) the cells' hand-frame positions at reading `r`'s joint angles."""
         return kinematics.cell_positions(r.spread, r.inner, r.outer)
 
     def open(self) -> None:
@@ -888,7 +891,7 @@ class BarrettBH8Hand(Hand):
         r = self._wait_reading(r.seq, cfg.stream_timeout_s)  # read at the final pose
         contact = self._contact(r)
         ids = np.flatnonzero(contact)
-        sites = kinematics.cell_positions(r.spread, r.inner, r.outer)
+        sites = self._sites(r)
         return Grasp(
             sensor_ids=ids,
             xyz=sites[ids],

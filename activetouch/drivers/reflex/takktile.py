@@ -906,8 +906,11 @@ class ReflexTakktileHand(Hand):
 
     def sensor_sites(self) -> np.ndarray | None:
         r = self._latest
-        if r is None:
-            return None
+        return None if r is None else self._sites(r)
+
+    @staticmethod
+    def _sites(r: Reading) -> np.ndarray:
+        """(38, 3) the sensors' hand-frame positions at reading `r`'s joint angles."""
         return sensor_positions(DEFAULT_GEOMETRY, float(r.motor[3]), r.proximal, r.distal)
 
     def state(self) -> ReflexHandState:
@@ -1015,7 +1018,7 @@ class ReflexTakktileHand(Hand):
         self.last_close_reasons = step.reasons
         r = self._wait_reading(r.seq, cfg.stream_timeout_s)  # read at the final pose
         ids = np.flatnonzero(r.contact & ~self.masked)
-        sites = sensor_positions(DEFAULT_GEOMETRY, float(r.motor[3]), r.proximal, r.distal)
+        sites = self._sites(r)
         return Grasp(
             sensor_ids=ids,
             xyz=sites[ids],
