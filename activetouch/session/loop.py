@@ -239,11 +239,9 @@ SIM_READING_PERIOD_S = 0.025
 
 
 def mean_thresholds(rest: RestLevels, k: float, n: int, own: np.ndarray) -> np.ndarray:
-    """Per-sensor thresholds for the mean of `n` readings: the rest level plus `k` times the
-    mean's sigma (a sensor's sigma over sqrt(n), at least the median's, as in
-    `noise_thresholds`), never under the hand's own threshold `own`."""
-    sigma = np.maximum(rest.std, float(np.median(rest.std))) / np.sqrt(max(1, int(n)))
-    return np.maximum(rest.mean + float(k) * sigma, own)
+    """Per-sensor thresholds for the mean of `n` readings: `noise_thresholds` with the mean's
+    sigma (a reading's over sqrt(n)), never under the hand's own threshold `own`."""
+    return np.maximum(noise_thresholds(rest, float(k) / np.sqrt(max(1, int(n)))), own)
 
 
 def mean_contacts(
