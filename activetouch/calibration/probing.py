@@ -114,7 +114,7 @@ def _confirmed_contact(hand: Hand, ignore: np.ndarray | None) -> tuple[float, in
 def in_contact_at_rest(hand: Hand, readings: int = 5) -> np.ndarray:
     """Sensor ids in contact in most of `readings` distinct states while nothing touches the
     hand (stuck, or a zero that drifted): a touch procedure ignores them, as a recognition
-    does (session.loop.mask_reasons)."""
+    does (session.contacts.mask_reasons)."""
     _, contact = read_states(hand, readings)
     return np.flatnonzero(contact.mean(axis=0) > 0.5)
 

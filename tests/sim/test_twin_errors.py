@@ -153,7 +153,7 @@ def test_bad_error_settings_name_the_setting(box):
 
 
 def test_noise_thresholds_from_rest_readings_by_hand():
-    from activetouch.session.loop import noise_thresholds, rest_levels
+    from activetouch.session.contacts import noise_thresholds, rest_levels
 
     p = np.zeros((4, 38))
     p[:, 0] = [10.0, 12.0, 14.0, 12.0]  # mean 12, sample std 1.633
@@ -171,7 +171,7 @@ def test_noise_thresholds_from_rest_readings_by_hand():
 
 def test_above_thresholds_drops_only_the_contacts_under_their_sensor():
     from activetouch.interfaces import Grasp
-    from activetouch.session.loop import above_thresholds
+    from activetouch.session.contacts import above_thresholds
 
     ids = np.array([3, 9, 30])
     g = Grasp(
@@ -193,7 +193,7 @@ def test_noisy_sensors_read_at_rest_set_thresholds_that_silence_them():
     # noise +10 sensor units: the configured threshold trips on the empty table; thresholds set
     # from 20 readings at rest (rest + 5 sigma) do not, and every finger closes.
     cfg = load_config(None, ["sim.fault_noise_std=10"])
-    from activetouch.session.loop import noise_thresholds, rest_levels
+    from activetouch.session.contacts import noise_thresholds, rest_levels
 
     with open_twin(None, cfg.sim, seed=3) as twin:
         hand = twin.hand
@@ -214,7 +214,7 @@ def test_noisy_sensors_read_at_rest_set_thresholds_that_silence_them():
 
 
 def test_mask_reasons_from_flags_and_rest_readings():
-    from activetouch.session.loop import dead_at_rest, mask_reasons, rest_levels
+    from activetouch.session.contacts import dead_at_rest, mask_reasons, rest_levels
 
     rng = np.random.default_rng(0)
     p = rng.normal(0.0, 2.0, (20, 38))
@@ -268,7 +268,7 @@ def test_the_registrys_twin_rig_applies_the_errors_too(box, tmp_path):
 
 def test_confirmed_keeps_only_contacts_that_last():
     from activetouch.interfaces import Grasp
-    from activetouch.session.loop import confirmed
+    from activetouch.session.contacts import confirmed
 
     g = Grasp(
         sensor_ids=np.array([1, 4, 7]),
@@ -294,7 +294,7 @@ def test_spurious_contacts_do_not_last_a_touch_does(box):
     # next reading, the fingers still closed. On the box, the contacts all last.
     from activetouch.interfaces import Pose
     from activetouch.planning.grid import training_grid
-    from activetouch.session.loop import confirmed
+    from activetouch.session.contacts import confirmed
 
     cfg = load_config(None, ["sim.fault_spurious=0.5"])
     with open_twin(None, cfg.sim, seed=4) as twin:
@@ -314,7 +314,7 @@ def test_spurious_contacts_do_not_last_a_touch_does(box):
 
 def test_contacts_decided_on_the_mean_of_the_readings_after_the_close():
     from activetouch.interfaces import Grasp
-    from activetouch.session.loop import RestLevels, mean_contacts, mean_thresholds
+    from activetouch.session.contacts import RestLevels, mean_contacts, mean_thresholds
 
     std = np.full(38, 10.0)
     std[3] = 2.0  # a quiet sensor: still held to the median sigma
@@ -352,7 +352,7 @@ def test_averaged_contacts_under_heavy_noise_come_back_to_the_quiet_hands(box):
     from activetouch.calibration.tactile import read_states
     from activetouch.interfaces import Pose
     from activetouch.planning.grid import training_grid
-    from activetouch.session.loop import (
+    from activetouch.session.contacts import (
         mean_contacts,
         mean_thresholds,
         noise_thresholds,
