@@ -109,6 +109,16 @@ class Grasp:
     def n_contacts(self) -> int:
         return len(self.sensor_ids)
 
+    def only(self, keep: np.ndarray) -> Grasp:
+        """This grasp with only the contacts where `keep` ((n,) bool) is true."""
+        return Grasp(
+            sensor_ids=self.sensor_ids[keep],
+            xyz=self.xyz[keep],
+            pressures=self.pressures[keep],
+            finger_angles=self.finger_angles,
+            preshape=self.preshape,
+        )
+
 
 @dataclass(frozen=True)
 class HandState:

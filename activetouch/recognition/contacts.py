@@ -23,12 +23,4 @@ def drop_support_contacts(grasp: Grasp, pose: Pose, support_z: float, margin_m: 
     z = `support_z` (object frame) or below it."""
     z = hand_to_object(pose, grasp.xyz)[:, 2]
     keep = z >= support_z + margin_m
-    if keep.all():
-        return grasp
-    return Grasp(
-        sensor_ids=grasp.sensor_ids[keep],
-        xyz=grasp.xyz[keep],
-        pressures=grasp.pressures[keep],
-        finger_angles=grasp.finger_angles,
-        preshape=grasp.preshape,
-    )
+    return grasp if keep.all() else grasp.only(keep)

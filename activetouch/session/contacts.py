@@ -15,14 +15,7 @@ from activetouch.interfaces import N_SENSORS, Grasp
 
 def without_sensors(grasp: Grasp, sensor_ids: np.ndarray) -> Grasp:
     """`grasp` without the contacts of `sensor_ids`."""
-    keep = ~np.isin(grasp.sensor_ids, sensor_ids)
-    return Grasp(
-        sensor_ids=grasp.sensor_ids[keep],
-        xyz=grasp.xyz[keep],
-        pressures=grasp.pressures[keep],
-        finger_angles=grasp.finger_angles,
-        preshape=grasp.preshape,
-    )
+    return grasp.only(~np.isin(grasp.sensor_ids, sensor_ids))
 
 
 def above_thresholds(grasp: Grasp, thresholds: np.ndarray) -> Grasp:
