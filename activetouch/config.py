@@ -30,7 +30,7 @@ Classifier = Literal["svm", "nn_inner", "nn_intersection"]
 Belief = Literal["histogram", "grasp_likelihood", "pose"]
 Granularity = Literal["triangle", "grasp"]
 ActionFrame = Literal["relative", "absolute"]
-PolicyName = Literal["tree", "greedy", "random"]
+PolicyName = Literal["tree", "greedy", "random", "mesh"]
 Eq4Sampling = Literal["renormalise", "per_class"]
 Objective = Literal["final", "anytime", "info_gain"]
 MovementCost = Literal["pose", "travel_time"]
@@ -169,7 +169,7 @@ class PlannerConfig:
     # Defaults measured in the twin (docs/planner.md, "The defaults: what beats random, and
     # why"); the paper's own settings are lam 0.5, 20 simulations, the whole path executed,
     # objective "final".
-    policy: PolicyName = "tree"  # tree | greedy | random
+    policy: PolicyName = "tree"  # tree | greedy | random | mesh
     horizon: int = 5
     simulations: int = 200
     exploration_c: float = 1.0
@@ -197,6 +197,13 @@ class PlannerConfig:
     # so a path that would test the leading class is not scored as learning nothing when the
     # belief is confidently wrong (docs/benchmark.md).
     belief_temperature: float = 1.0
+    # policy "mesh" (planning/mesh_lookahead.py): the likeliest (class, placement) hypotheses
+    # it predicts each pose's grasp under, the width (rad per finger) within which predicted
+    # closures count as the same, and how much the expected top-class probability must rise
+    # over the belief's own before the meshes, not greedy on the training grasps, decide.
+    mesh_hypotheses: int = 64
+    mesh_sigma_rad: float = 0.05
+    mesh_min_gain: float = 0.01
 
 
 @dataclass

@@ -11,6 +11,9 @@ executes them, adds the real observations to the state (`PlanningState.advance`)
 - ``greedy``: the same search with horizon 1 (the paper's baseline).
 - ``random``: one pose drawn uniformly from the unvisited poses reachable from the current one
   (the model's edges join every pair of poses, so: from all unvisited poses).
+- ``mesh``: one grasp ahead on the class x placement belief, each class's mesh predicting how
+  far the fingers close at each pose where the object may stand (planning/mesh_lookahead.py);
+  greedy decides where the meshes tell no pose apart, or without a placement belief.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 from activetouch.config import Eq4Sampling, Objective, PlannerConfig, PolicyName
 from activetouch.errors import ConfigError, PlanningError
 from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
+from activetouch.planning.mesh_lookahead import Placement, predicted_values
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.planning.simulated_belief import BeliefTable
 from activetouch.recognition.kernels import ClassifierKernel
@@ -45,6 +49,9 @@ class PlanningState:
     # Summed log p(grasp | y, pose) of the real grasps (K,), when recognition.belief is
     # grasp_likelihood: the root belief of a policy made with a belief table.
     log_belief: np.ndarray | None = None
+    # The class x placement belief with where the next grasp goes (`recognition.belief =
+    # pose`, a ReFlex model): what the mesh policy plans on.
+    placement: Placement | None = None
 
     @classmethod
     def start(cls, pose: int, counts: np.ndarray, cells: np.ndarray) -> PlanningState:
@@ -225,6 +232,75 @@ class RandomPolicy(Policy):
         )
 
 
+class MeshPolicy(Policy):
+    """One grasp ahead on the class x placement belief (`predicted_values`): the unvisited pose
+    whose predicted finger closures leave the likeliest class the most probable. Where no pose
+    beats the belief's present maximum by `min_gain`, or the state has no placement belief,
+    `fallback` (greedy on the training grasps) plans."""
+
+    name = "mesh"
+
+    def __init__(
+        self,
+        model: ObservationModel,
+        fallback: Policy,
+        *,
+        hypotheses: int,
+        sigma_rad: float,
+        min_gain: float,
+    ) -> None:
+        if hypotheses < 1:
+            raise ConfigError(f"planner.mesh_hypotheses must be >= 1, got {hypotheses}")
+        if not sigma_rad > 0:
+            raise ConfigError(f"planner.mesh_sigma_rad must be > 0, got {sigma_rad}")
+        self.model, self.fallback = model, fallback
+        self.hypotheses, self.sigma_rad, self.min_gain = int(hypotheses), float(sigma_rad), min_gain
+        self._poses = np.concatenate([model.pose_xyz, model.pose_quat], axis=1)
+
+    def interrupt(self) -> None:
+        self.fallback.interrupt()
+
+    def clear_interrupt(self) -> None:
+        self.fallback.clear_interrupt()
+
+    def set_edge_cost(self, cost: np.ndarray) -> None:
+        self.fallback.set_edge_cost(cost)
+
+    def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
+        edges = unvisited_targets(self.model, state.pose, state.visited)
+        if edges.size == 0:
+            return _exhausted(self.name)
+        where = state.placement
+        if where is None:
+            return self._fallback(state, rng)
+        if where.belief.class_probabilities().max() >= 1.0 - self.min_gain:
+            return self._fallback(state, rng)  # no grasp can add min_gain: skip the meshes
+        targets = self.model.edge_target[edges]
+        v, now = predicted_values(
+            where.belief,
+            self._poses[targets],
+            where.preshape,
+            where.offset,
+            hypotheses=self.hypotheses,
+            sigma_rad=self.sigma_rad,
+        )
+        best = int(np.argmax(v))
+        if v[best] < now + self.min_gain:
+            return self._fallback(state, rng)
+        return Plan(
+            policy=self.name,
+            poses=np.array([targets[best]], dtype=np.int64),
+            actions=np.array([self.model.edge_action[edges[best]]], dtype=np.int64),
+            value=float(v[best]),
+        )
+
+    def _fallback(self, state: PlanningState, rng: np.random.Generator) -> Plan:
+        plan = self.fallback.plan(state, rng)
+        return Plan(
+            plan.policy, plan.poses[:1], plan.actions[:1], plan.value, plan.exhausted, plan.search
+        )
+
+
 # The allowed words live with the config; policies built without a config check them too.
 POLICY_NAMES: tuple[str, ...] = typing.get_args(PolicyName)
 EQ4_SAMPLING: tuple[str, ...] = typing.get_args(Eq4Sampling)
@@ -238,7 +314,7 @@ def make_policy(
     kernel: ClassifierKernel,
     belief: BeliefTable | None = None,
 ) -> Policy:
-    """A policy by its configuration name (tree | greedy | random), parameters from `cfg`.
+    """A policy by its configuration name (tree | greedy | random | mesh), parameters from `cfg`.
     `belief`: plan on the grasp-likelihood belief (`TreeSearch`)."""
     policy = _make(name, cfg, model, kernel, belief)
     policy.movement_cost = cfg.movement_cost
@@ -268,6 +344,14 @@ def _make(
         return TreePolicy(model, kernel, horizon=cfg.horizon, **kw)  # type: ignore[arg-type]
     if name == "greedy":
         return GreedyPolicy(model, kernel, **kw)
+    if name == "mesh":
+        return MeshPolicy(
+            model,
+            GreedyPolicy(model, kernel, **kw),
+            hypotheses=cfg.mesh_hypotheses,
+            sigma_rad=cfg.mesh_sigma_rad,
+            min_gain=cfg.mesh_min_gain,
+        )
     raise ConfigError(f"unknown planner policy {name!r}; choose from {', '.join(POLICY_NAMES)}")
 
 
@@ -320,6 +404,7 @@ __all__ = [
     "POLICY_NAMES",
     "Episode",
     "GreedyPolicy",
+    "MeshPolicy",
     "Observe",
     "Plan",
     "PlanningState",

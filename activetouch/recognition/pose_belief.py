@@ -513,6 +513,10 @@ class PoseBelief:
         """(K,) log of the class marginal (up to a constant)."""
         return logsumexp(self.log_b, axis=1)
 
+    def class_probabilities(self) -> np.ndarray:
+        """(K,) p(y | the grasps so far): the class marginal, normalised."""
+        return softmax_belief(self.class_log_belief())
+
     def estimate(self, k: int) -> PoseEstimate:
         return pose_estimate(self.log_b, self.hyps, k)
 

@@ -50,6 +50,7 @@ from activetouch.errors import (
 from activetouch.interfaces import N_SENSORS, Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.objects.library import ObjectLibrary
+from activetouch.planning.mesh_lookahead import Placement
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
 from activetouch.planning.policies import Plan, PlanningState, Policy
@@ -337,6 +338,7 @@ class RecognitionSession:
         self._grasp_s = 0.0
         self._likelihood = grasp_likelihood_of(model, recognition)
         self._pose_of = pose_belief_of(model, recognition, library)
+        self._family = model_hand_family(model)
         # Only a pose belief has a placement to follow (`belief.pose` is None otherwise).
         self._follow = (recognition or saved_recognition(model)).pose_follow
         # Where the object is believed to stand off its nominal placement (dx, dy, yaw): the
@@ -441,6 +443,14 @@ class RecognitionSession:
             else:
                 self._grasp_s += time.perf_counter() - t
 
+    def _placement(self, belief: BeliefTracker) -> Placement | None:
+        """The class x placement belief for the mesh policy, where the next grasp goes and
+        with what preshape; None without a pose belief or for a hand the meshes' finger
+        sweeps do not model (the ReFlex's only)."""
+        if belief.pose is None or self._family != "reflex":
+            return None
+        return Placement(belief.pose, self._offset.copy(), float(self._preshapes[0]))
+
     def _target(self, pose_id: int) -> Pose:
         """The wrist pose (object frame) of training pose `pose_id` on the object as it is
         believed to stand."""
@@ -541,16 +551,17 @@ class RecognitionSession:
             tb = time.perf_counter()
             p, felt, cells = belief.update(grasp, pose, self._masked)
             res.belief_s += time.perf_counter() - tb
+            best = int(np.argmax(p))
+            if self._follow and belief.pose is not None and felt:
+                self._offset = belief.pose.placement_peak()
             state = PlanningState(
                 pose=pose_id,
                 visited=np.array(visited, dtype=np.int64),
                 counts=belief.counts,
                 cells=cells,
                 log_belief=belief.log_belief,
+                placement=self._placement(belief),
             )
-            best = int(np.argmax(p))
-            if self._follow and belief.pose is not None and felt:
-                self._offset = belief.pose.placement_peak()
             res.labels.append(names[best] if felt else NO_LABEL)
             res.probabilities.append([float(v) for v in p])
             res.pose_ids.append(pose_id)
@@ -617,6 +628,7 @@ class RecognitionSession:
                     counts=state.counts,
                     cells=state.cells,
                     log_belief=state.log_belief,
+                    placement=state.placement,
                 )
 
         def attempt(pose_id: int) -> bool:

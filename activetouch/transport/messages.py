@@ -104,7 +104,7 @@ Label = Annotated[str, msgspec.Meta(max_length=200)]
 Pressures = Annotated[list[float], msgspec.Meta(min_length=1, max_length=MAX_SENSORS)]
 Contacts = Annotated[list[bool], msgspec.Meta(min_length=1, max_length=MAX_SENSORS)]
 FingerAngles = Annotated[list[float], msgspec.Meta(min_length=N_FINGERS, max_length=N_FINGERS)]
-Policy = Literal["tree", "greedy", "random"]
+Policy = Literal["tree", "greedy", "random", "mesh"]
 
 # Upper bounds of RecognizeRequest, checked at admission (issue 16, finding 2): unbounded
 # values froze the daemon (3e6 simulations held the planner for a minute) or failed only

@@ -67,7 +67,7 @@ float64 preshape             # rad
 
 RECOGNIZE_SRV = """\
 # One recognition, admitted and run exactly as the Zenoh `recognize` request (docs/api.md).
-string policy                # tree | greedy | random; "" the configured planner.policy
+string policy                # tree | greedy | random | mesh; "" the configured planner.policy
 uint32 max_moves             # grasp budget; 0 the configured session.max_moves
 int64 seed -1                # -1: the daemon draws one (reported in the result)
 string object                # simulation: the object to place; "" on a real robot

@@ -12,7 +12,7 @@ from activetouch.interfaces import Grasp, Pose
 from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.policies import make_policy
-from activetouch.recognition.grasp_likelihood import softmax_belief
+from activetouch.recognition.grasp_likelihood import pose_at_offset, softmax_belief
 from activetouch.session.local import recognize_in_twin
 from activetouch.session.loop import (
     NO_LABEL,
@@ -31,7 +31,7 @@ def _run(home, model, obj="cup", policy="tree", seed=0, **kw):
     return recognize_in_twin(model, lib, obj, policy, seed, small_config(), **kw)
 
 
-@pytest.mark.parametrize("policy", ["tree", "greedy", "random"])
+@pytest.mark.parametrize("policy", ["tree", "greedy", "random", "mesh"])
 def test_each_policy_recognises_and_never_repeats_a_pose(trained_home, small_model, policy):
     res = _run(trained_home, small_model, "bottle", policy, seed=1, max_moves=8)
     assert 1 <= res.moves <= 8
@@ -114,6 +114,62 @@ def _random_session(hand, wrist, model, cfg, max_moves: int) -> RecognitionSessi
         type(cfg.session)(max_moves=max_moves, confidence=1.1),
         np.random.default_rng(0),
     )
+
+
+def test_the_mesh_policy_plans_on_the_placement_belief_the_session_gives_it(
+    trained_home, small_model
+):
+    # The cup 2 cm and 20 deg off: before each plan the session hands the policy its class x
+    # placement belief (the probabilities it reports) and the offset it then grasps at.
+    cfg = small_config()
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    policy = make_policy(
+        "mesh",
+        cfg.planner,
+        small_model.observation,
+        small_model.classifier.kernel(),
+        belief_table_of(small_model, cfg.recognition),
+    )
+    seen: list = []
+    grasped: list = []  # progress reports: one per grasp
+    goals: list[np.ndarray] = []  # every wrist goal, those found unreachable too
+    plan = policy.plan
+
+    def spy(state, rng):
+        out = plan(state, rng)
+        where = state.placement
+        seen.append(
+            (len(grasped), len(goals), where.belief.class_probabilities(), where.offset, out)
+        )
+        return out
+
+    policy.plan = spy  # type: ignore[method-assign]
+    sim = dataclasses.replace(cfg.sim, placement_error_m=0.02, placement_error_deg=20.0)
+    with open_twin(lib.get("cup"), sim, seed=3, workcell=cfg.workcell) as twin:
+        move_to = twin.wrist.move_to
+        twin.wrist.move_to = lambda pose: (goals.append(pose.as_array()), move_to(pose))[1]
+        res = RecognitionSession(
+            twin.hand,
+            twin.wrist,
+            small_model,
+            policy,
+            type(cfg.session)(max_moves=5, confidence=1.1),
+            np.random.default_rng(3),
+            on_progress=grasped.append,
+            support_z=twin.support_z,
+            recognition=cfg.recognition,
+            library=lib,
+        ).run()
+    assert res.moves == 5 and len(seen) >= 4
+    obs = small_model.observation
+    poses = np.concatenate([obs.pose_xyz, obs.pose_quat], axis=1)
+    moved = False
+    for n_grasps, n_goals, p, offset, out in seen:
+        assert p == pytest.approx(res.probabilities[n_grasps - 1])
+        want = pose_at_offset(poses[out.poses[0]], offset)
+        assert goals[n_goals][:3] == pytest.approx(want[:3])
+        moved |= bool(np.any(offset))
+    assert moved  # the object was found off its frame and the grasps followed it
 
 
 def test_unreachable_poses_are_skipped_counted_and_not_retried(trained_home, small_model):
