@@ -252,7 +252,7 @@ def wrist_frames(poses: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.
 
 
 @dataclass(frozen=True)
-class Placement:
+class PlacementBelief:
     """What the session tells the mesh policy: its class x placement belief, where it will
     place the next grasp (the believed offset, dx dy yaw) and the preshape it grasps with."""
 

@@ -27,7 +27,7 @@ import numpy as np
 from activetouch.config import Eq4Sampling, Objective, PlannerConfig, PolicyName
 from activetouch.errors import ConfigError, PlanningError
 from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
-from activetouch.planning.mesh_lookahead import Placement, predicted_values
+from activetouch.planning.mesh_lookahead import PlacementBelief, predicted_values
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.planning.simulated_belief import BeliefTable
 from activetouch.recognition.kernels import ClassifierKernel
@@ -51,7 +51,7 @@ class PlanningState:
     log_belief: np.ndarray | None = None
     # The class x placement belief with where the next grasp goes (`recognition.belief =
     # pose`, a ReFlex model): what the mesh policy plans on.
-    placement: Placement | None = None
+    placement: PlacementBelief | None = None
 
     @classmethod
     def start(cls, pose: int, counts: np.ndarray, cells: np.ndarray) -> PlanningState:

@@ -50,7 +50,7 @@ from activetouch.errors import (
 from activetouch.interfaces import N_SENSORS, Grasp, Hand, Pose
 from activetouch.model import TrainedModel
 from activetouch.objects.library import ObjectLibrary
-from activetouch.planning.mesh_lookahead import Placement
+from activetouch.planning.mesh_lookahead import PlacementBelief
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
 from activetouch.planning.policies import Plan, PlanningState, Policy
@@ -443,13 +443,13 @@ class RecognitionSession:
             else:
                 self._grasp_s += time.perf_counter() - t
 
-    def _placement(self, belief: BeliefTracker) -> Placement | None:
+    def _placement(self, belief: BeliefTracker) -> PlacementBelief | None:
         """The class x placement belief for the mesh policy, where the next grasp goes and
         with what preshape; None without a pose belief or for a hand the meshes' finger
         sweeps do not model (the ReFlex's only)."""
         if belief.pose is None or self._family != "reflex":
             return None
-        return Placement(belief.pose, self._offset.copy(), float(self._preshapes[0]))
+        return PlacementBelief(belief.pose, self._offset.copy(), float(self._preshapes[0]))
 
     def _target(self, pose_id: int) -> Pose:
         """The wrist pose (object frame) of training pose `pose_id` on the object as it is

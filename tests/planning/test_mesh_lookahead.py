@@ -12,7 +12,7 @@ from activetouch.models import reflex
 from activetouch.models.reflex import ReflexGeometry
 from activetouch.planning.mesh_lookahead import (
     SWEEP_STEP_RAD,
-    Placement,
+    PlacementBelief,
     closure_stops,
     expected_accuracy,
     finger_sweeps,
@@ -181,7 +181,7 @@ def test_the_policy_grasps_where_the_classes_differ_and_defers_where_none_do(sph
         visited=np.array([0], dtype=np.int64),
         counts=np.zeros(1),
         cells=np.zeros(0, dtype=np.int64),
-        placement=Placement(belief, np.zeros(3), 0.0),
+        placement=PlacementBelief(belief, np.zeros(3), 0.0),
     )
     plan = policy.plan(state, np.random.default_rng(0))
     assert plan.policy == "mesh" and plan.poses.tolist() == [2] and plan.actions.tolist() == [11]
