@@ -253,6 +253,8 @@ class MeshPolicy(Policy):
             raise ConfigError(f"planner.mesh_hypotheses must be >= 1, got {hypotheses}")
         if not sigma_rad > 0:
             raise ConfigError(f"planner.mesh_sigma_rad must be > 0, got {sigma_rad}")
+        if not 0.0 <= min_gain < 1.0:
+            raise ConfigError(f"planner.mesh_min_gain must lie in [0, 1), got {min_gain}")
         self.model, self.fallback = model, fallback
         self.hypotheses, self.sigma_rad, self.min_gain = int(hypotheses), float(sigma_rad), min_gain
         self._poses = np.concatenate([model.pose_xyz, model.pose_quat], axis=1)

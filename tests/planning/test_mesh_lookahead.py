@@ -211,6 +211,8 @@ def test_bad_settings_are_clear_errors():
         MeshPolicy(m, _Fallback(), hypotheses=0, sigma_rad=0.05, min_gain=0.01)
     with pytest.raises(ConfigError, match="mesh_sigma_rad"):
         MeshPolicy(m, _Fallback(), hypotheses=8, sigma_rad=0.0, min_gain=0.01)
+    with pytest.raises(ConfigError, match="mesh_min_gain"):
+        MeshPolicy(m, _Fallback(), hypotheses=8, sigma_rad=0.05, min_gain=-0.1)
 
 
 def test_a_turned_placement_reads_as_the_mesh_turned_and_shifted():
