@@ -112,8 +112,12 @@ def test_finger_closure_tells_a_wide_object_from_a_narrow_one() -> None:
             (pose_at(0.0)[None], [grasp([1, 2, 3], (1.2, 1.2, 1.2))]),
         ]
     )
+    # The kernel's verdict, under a floor low enough not to cap it (the default caps a grasp's
+    # say at log(1 / floor) nats)
     ll = lik.log_likelihood(
-        grasp([1, 2, 3], (1.15, 1.2, 1.2)), Pose(pose_at(0.0)[:3], IDENTITY), LikelihoodParams()
+        grasp([1, 2, 3], (1.15, 1.2, 1.2)),
+        Pose(pose_at(0.0)[:3], IDENTITY),
+        LikelihoodParams(floor=1e-4),
     )
     assert ll[1] > ll[0] + 5.0
 
