@@ -611,6 +611,8 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
         out["recognition.pose_contact_sigma_m"] = rc.pose_contact_sigma_m
         out["recognition.pose_follow"] = rc.pose_follow
         out["recognition.pose_drift_m"] = rc.pose_drift_m
+        out["recognition.pose_grasps_weight"] = rc.pose_grasps_weight
+        out["recognition.likelihood_floor"] = rc.likelihood_floor
     out["session.average_readings"] = cfg.session.average_readings
     out["hand.type"] = cfg.hand.type
     return out
