@@ -27,7 +27,12 @@ from scipy.spatial.transform import Rotation
 from activetouch.models import reflex
 from activetouch.models.reflex import ReflexGeometry
 from activetouch.recognition.grasp_likelihood import pose_at_offset
-from activetouch.recognition.pose_belief import DISTANCE_CAP_M, ClassShape, PoseBelief
+from activetouch.recognition.pose_belief import (
+    DISTANCE_CAP_M,
+    ClassShape,
+    PoseBelief,
+    trilinear_at,
+)
 
 # The proximal angles the predicted close steps through (rad): finer than the grasp
 # likelihood's closure width (0.05 rad) is not needed to tell a handle from free space.
@@ -70,42 +75,6 @@ def finger_sweeps(
     return angles, sites
 
 
-@njit(cache=True)
-def _sd(
-    values: np.ndarray,
-    dims: np.ndarray,
-    origins: np.ndarray,
-    steps: np.ndarray,
-    offsets: np.ndarray,
-    k: int,
-    x: float,
-    y: float,
-    z: float,
-    cap: float,
-) -> float:
-    """Class k's signed distance at one point (its frame), trilinear; `cap` off its grid."""
-    nx, ny, nz = dims[k, 0], dims[k, 1], dims[k, 2]
-    u = (x - origins[k, 0]) / steps[k]
-    v = (y - origins[k, 1]) / steps[k]
-    w = (z - origins[k, 2]) / steps[k]
-    if not (0.0 <= u <= nx - 1 and 0.0 <= v <= ny - 1 and 0.0 <= w <= nz - 1):
-        return cap
-    i = min(int(np.floor(u)), nx - 2)
-    j = min(int(np.floor(v)), ny - 2)
-    m = min(int(np.floor(w)), nz - 2)
-    fu, fv, fw = u - i, v - j, w - m
-    base = offsets[k]
-    acc = 0.0
-    for di in range(2):
-        wu = fu if di else 1.0 - fu
-        for dj in range(2):
-            wv = fv if dj else 1.0 - fv
-            for dm in range(2):
-                ww = fw if dm else 1.0 - fw
-                acc += wu * wv * ww * values[base + ((i + di) * ny + (j + dj)) * nz + (m + dm)]
-    return acc
-
-
 @njit(cache=True, parallel=True)
 def closure_stops(
     values: np.ndarray,
@@ -131,43 +100,19 @@ def closure_stops(
     for p in prange(P):
         for m in range(M):
             k = cls[m]
-            c, s = np.cos(hyps[m, 2]), np.sin(hyps[m, 2])
+            n = dims[k, 0] * dims[k, 1] * dims[k, 2]
+            grid = values[offsets[k] : offsets[k] + n].reshape((dims[k, 0], dims[k, 1], dims[k, 2]))
+            # the class's frame where hypothesis m stands it, and its grid's corner and step
+            at = (hyps[m, 0], hyps[m, 1], np.cos(hyps[m, 2]), np.sin(hyps[m, 2]), lifts[k])
+            corner = (origins[k, 0], origins[k, 1], origins[k, 2], steps[k])
             for f in range(F):
                 prev = -1
                 for j in range(1, J + 1, 2):
                     jj = min(j, J - 1)
-                    if _touches(
-                        values,
-                        dims,
-                        origins,
-                        steps,
-                        offsets,
-                        lifts[k],
-                        k,
-                        c,
-                        s,
-                        hyps[m, 0],
-                        hyps[m, 1],
-                        sites[p, f, jj],
-                        touch_m,
-                        support_z,
-                    ):
+                    if _touches(grid, corner, at, sites[p, f, jj], touch_m, support_z):
                         first = jj
                         if jj - 1 > prev and _touches(
-                            values,
-                            dims,
-                            origins,
-                            steps,
-                            offsets,
-                            lifts[k],
-                            k,
-                            c,
-                            s,
-                            hyps[m, 0],
-                            hyps[m, 1],
-                            sites[p, f, jj - 1],
-                            touch_m,
-                            support_z,
+                            grid, corner, at, sites[p, f, jj - 1], touch_m, support_z
                         ):
                             first = jj - 1
                         out[p, m, f] = first
@@ -178,30 +123,27 @@ def closure_stops(
 
 @njit(cache=True)
 def _touches(
-    values: np.ndarray,
-    dims: np.ndarray,
-    origins: np.ndarray,
-    steps: np.ndarray,
-    offsets: np.ndarray,
-    lift: float,
-    k: int,
-    c: float,
-    s: float,
-    tx: float,
-    ty: float,
+    grid: np.ndarray,
+    corner: tuple[float, float, float, float],
+    at: tuple[float, float, float, float, float],
     pts: np.ndarray,
     touch_m: float,
     support_z: float,
 ) -> bool:
     """Whether any of `pts` (S, 3, nominal frame) is below the table or within `touch_m` of
-    class k's surface, the class standing at (tx, ty) turned by (cos, sin) = (c, s)."""
+    the surface of a class (its signed distances `grid`, first corner and step `corner`)
+    standing at `at` = (tx, ty, cos yaw, sin yaw, lift)."""
+    tx, ty, c, s, lift = at
+    ox, oy, oz, step = corner
     for q in range(pts.shape[0]):
-        oz = pts[q, 2]
-        if oz < support_z:
+        if pts[q, 2] < support_z:
             return True
         dx, dy = pts[q, 0] - tx, pts[q, 1] - ty
         x, y = c * dx + s * dy, -s * dx + c * dy  # R^T (p - t)
-        if _sd(values, dims, origins, steps, offsets, k, x, y, oz - lift, DISTANCE_CAP_M) < touch_m:
+        d = trilinear_at(
+            grid, (x - ox) / step, (y - oy) / step, (pts[q, 2] - lift - oz) / step, DISTANCE_CAP_M
+        )
+        if d < touch_m:
             return True
     return False
 

@@ -181,29 +181,34 @@ def trilinear(values: np.ndarray, u: np.ndarray, outside: float) -> np.ndarray:
     """(M,) `values` (nx, ny, nz) read trilinearly at grid coordinates `u` (M, 3); `outside`
     where a point is off the grid. Compiled: the belief reads every class at every
     hypothesis's points, millions of reads per grasp."""
-    nx, ny, nz = values.shape
     out = np.empty(len(u))
     for m in range(len(u)):
-        x, y, z = u[m, 0], u[m, 1], u[m, 2]
-        if not (0.0 <= x <= nx - 1 and 0.0 <= y <= ny - 1 and 0.0 <= z <= nz - 1):
-            out[m] = outside
-            continue
-        i, j, k = (
-            min(int(np.floor(x)), nx - 2),
-            min(int(np.floor(y)), ny - 2),
-            min(int(np.floor(z)), nz - 2),
-        )
-        fx, fy, fz = x - i, y - j, z - k
-        acc = 0.0
-        for dx in range(2):
-            wx = fx if dx else 1.0 - fx
-            for dy in range(2):
-                wy = fy if dy else 1.0 - fy
-                for dz in range(2):
-                    wz = fz if dz else 1.0 - fz
-                    acc += wx * wy * wz * values[i + dx, j + dy, k + dz]
-        out[m] = acc
+        out[m] = trilinear_at(values, u[m, 0], u[m, 1], u[m, 2], outside)
     return out
+
+
+@njit(cache=True)
+def trilinear_at(values: np.ndarray, x: float, y: float, z: float, outside: float) -> float:
+    """`values` (nx, ny, nz) read trilinearly at one point's grid coordinates; `outside` off
+    the grid."""
+    nx, ny, nz = values.shape
+    if not (0.0 <= x <= nx - 1 and 0.0 <= y <= ny - 1 and 0.0 <= z <= nz - 1):
+        return outside
+    i, j, k = (
+        min(int(np.floor(x)), nx - 2),
+        min(int(np.floor(y)), ny - 2),
+        min(int(np.floor(z)), nz - 2),
+    )
+    fx, fy, fz = x - i, y - j, z - k
+    acc = 0.0
+    for dx in range(2):
+        wx = fx if dx else 1.0 - fx
+        for dy in range(2):
+            wy = fy if dy else 1.0 - fy
+            for dz in range(2):
+                wz = fz if dz else 1.0 - fz
+                acc += wx * wy * wz * values[i + dx, j + dy, k + dz]
+    return acc
 
 
 def grid_inside(
