@@ -62,17 +62,16 @@ def pack_shapes(shapes: list[ClassShape]) -> PackedShapes:
     )
 
 
-def finger_sweeps(
-    geom: ReflexGeometry, preshape: float, coupling: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(angles (J,), sites (3, J, 9, 3)): each finger's nine sensor sites (hand frame) as the
-    free finger closes, proximal angle theta and distal k * theta (the tendon's split)."""
+def finger_sweeps(geom: ReflexGeometry, preshape: float, coupling: float) -> np.ndarray:
+    """(3, J, 9, 3): each finger's nine sensor sites (hand frame) as the free finger closes,
+    step j at proximal angle theta = (j + 1) * SWEEP_STEP_RAD and distal k * theta (the
+    tendon's split)."""
     angles = np.arange(1, int(SWEEP_LIMIT_RAD / SWEEP_STEP_RAD) + 1) * SWEEP_STEP_RAD
     sites = np.empty((reflex.N_FINGERS, len(angles), reflex.SENSORS_PER_FINGER, 3))
     for f in range(reflex.N_FINGERS):
         for j, a in enumerate(angles):
             sites[f, j] = reflex.finger_sensor_positions(geom, f, preshape, a, coupling * a)
-    return angles, sites
+    return sites
 
 
 @njit(cache=True, parallel=True)
@@ -213,12 +212,14 @@ def predicted_values(
     sigma_rad: float,
     coupling: float = 0.25,
     geom: ReflexGeometry | None = None,
+    packed: PackedShapes | None = None,
 ) -> tuple[np.ndarray, float]:
     """(V (P,) for each of `poses` (P, 7, training poses), the belief's own maximum class
-    probability now) on `belief`'s `hypotheses` likeliest (class, placement) pairs."""
+    probability now) on `belief`'s `hypotheses` likeliest (class, placement) pairs. `packed`:
+    `pack_shapes(belief.shapes)`, if the caller keeps it."""
     cls, hidx, w = top_hypotheses(belief.log_b, hypotheses)
-    packed = _packed(belief)
-    _, sweeps = finger_sweeps(geom or ReflexGeometry(), preshape, coupling)
+    packed = packed or pack_shapes(belief.shapes)
+    sweeps = finger_sweeps(geom or ReflexGeometry(), preshape, coupling)
     rot, trans = wrist_frames(poses, offset)
     # every pose's sweeps in the nominal object frame, once for all hypotheses
     sites = np.ascontiguousarray(
@@ -242,12 +243,3 @@ def predicted_values(
     v = expected_accuracy(angles, w, cls, len(belief.shapes), sigma_rad)
     now = np.bincount(cls, weights=w, minlength=len(belief.shapes)).max()
     return v, float(now)
-
-
-def _packed(belief: PoseBelief) -> PackedShapes:
-    """The belief's grids packed once per belief (they do not change during a recognition)."""
-    cached = getattr(belief, "_packed_shapes", None)
-    if cached is None:
-        cached = pack_shapes(belief.shapes)
-        belief._packed_shapes = cached  # type: ignore[attr-defined]
-    return cached

@@ -27,7 +27,12 @@ import numpy as np
 from activetouch.config import Eq4Sampling, Objective, PlannerConfig, PolicyName
 from activetouch.errors import ConfigError, PlanningError
 from activetouch.planning.mcts import SearchResult, TreeSearch, unvisited_targets
-from activetouch.planning.mesh_lookahead import PlacementBelief, predicted_values
+from activetouch.planning.mesh_lookahead import (
+    PackedShapes,
+    PlacementBelief,
+    pack_shapes,
+    predicted_values,
+)
 from activetouch.planning.observation_model import ObservationModel
 from activetouch.planning.simulated_belief import BeliefTable
 from activetouch.recognition.kernels import ClassifierKernel
@@ -258,6 +263,9 @@ class MeshPolicy(Policy):
         self.model, self.fallback = model, fallback
         self.hypotheses, self.sigma_rad, self.min_gain = int(hypotheses), float(sigma_rad), min_gain
         self._poses = np.concatenate([model.pose_xyz, model.pose_quat], axis=1)
+        # The belief's grids packed for the compiled reads, and the list they were packed
+        # from: every recognition's belief shares its session's list, so once per session.
+        self._packed: tuple[list, PackedShapes] | None = None
 
     def interrupt(self) -> None:
         self.fallback.interrupt()
@@ -285,6 +293,7 @@ class MeshPolicy(Policy):
             where.offset,
             hypotheses=self.hypotheses,
             sigma_rad=self.sigma_rad,
+            packed=self._packed_for(where.belief.shapes),
         )
         best = int(np.argmax(v))
         if v[best] < now + self.min_gain:
@@ -295,6 +304,11 @@ class MeshPolicy(Policy):
             actions=np.array([self.model.edge_action[edges[best]]], dtype=np.int64),
             value=float(v[best]),
         )
+
+    def _packed_for(self, shapes: list) -> PackedShapes:
+        if self._packed is None or self._packed[0] is not shapes:
+            self._packed = (shapes, pack_shapes(shapes))
+        return self._packed[1]
 
     def _fallback(self, state: PlanningState, rng: np.random.Generator) -> Plan:
         plan = self.fallback.plan(state, rng)

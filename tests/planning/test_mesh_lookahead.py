@@ -51,7 +51,7 @@ def _sites(pose: np.ndarray, sweeps: np.ndarray) -> np.ndarray:
 
 def _stops(shapes, hyps, cls, pose=WRIST, support=-np.inf) -> np.ndarray:
     p = pack_shapes(shapes)
-    _, sweeps = finger_sweeps(ReflexGeometry(), 0.0, 0.25)
+    sweeps = finger_sweeps(ReflexGeometry(), 0.0, 0.25)
     return closure_stops(
         p.values,
         p.dims,
@@ -103,7 +103,7 @@ def test_a_finger_that_would_go_under_the_table_stops_there(sphere):
     assert np.all(free == free.max())  # every finger closes on nothing ...
     # A table between the sites' height at the first step and their lowest (the fingers
     # rise, then their tips curl back down past where they started)
-    _, sweeps = finger_sweeps(ReflexGeometry(), 0.0, 0.25)
+    sweeps = finger_sweeps(ReflexGeometry(), 0.0, 0.25)
     start, lowest = sweeps[:, 0, :, 2].min(), sweeps[:, :, :, 2].min()
     assert lowest < start
     table = _stops([sphere], [[0.5, 0.0, 0.0]], [0], support=WRIST[2] + (start + lowest) / 2)[0]
