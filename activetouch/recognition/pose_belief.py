@@ -55,6 +55,7 @@ _MAY_BE_ZERO = (
     "prior_sigma_deg",
     "grasps_weight",
     "drift_m",
+    "alternate_share",
 )
 
 
@@ -75,6 +76,7 @@ class PoseParams:
     prior_sigma_deg: float = _DEFAULTS.pose_prior_sigma_deg
     grasps_weight: float = _DEFAULTS.pose_grasps_weight
     drift_m: float = _DEFAULTS.pose_drift_m
+    alternate_share: float = _DEFAULTS.pose_alternate_share
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -467,6 +469,30 @@ def coalition_scores(peaks: np.ndarray, weights: np.ndarray, scale: np.ndarray) 
     return near @ weights
 
 
+# Placements closer than this (in grid steps of x, y and yaw together) are one placement.
+APART_STEPS = 1.5
+
+
+def rival_placement(
+    peaks: np.ndarray, scores: np.ndarray, scale: np.ndarray, best: int, share: float
+) -> int | None:
+    """The index of the placement most of the classes agree on after `best` (`peaks` (n, 3),
+    `scores` (n,) from `coalition_scores`) among those more than `APART_STEPS` of `scale`
+    from it, if its score is at least `share` of the best's; else None. A grasp placed for
+    one group of classes lands on their training poses and off the others', whose training
+    grasps then read blurred and lose to the group's: grasps shared between two rival
+    placements give neither that edge."""
+    if share <= 0:
+        return None
+    d = peaks - peaks[best]
+    d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
+    apart = np.flatnonzero(np.sqrt(np.sum((d / scale) ** 2, axis=1)) > APART_STEPS)
+    if not apart.size:
+        return None
+    rival = int(apart[np.argmax(scores[apart])])
+    return rival if scores[rival] >= share * scores[best] else None
+
+
 # Hypotheses whose best class is this far (nats) below the best pair get no training-grasp
 # term (they are ruled out already; it is the costly part).
 PRUNE_NATS = 15.0
@@ -545,4 +571,10 @@ class PoseBelief:
         live = np.flatnonzero(w >= COALITION_WEIGHT)
         peaks = np.array([peak_offset(self.mesh_log_b[k], self.hyps) for k in live])
         scale = np.array([self.params.step_m, self.params.step_m, np.deg2rad(self.params.step_deg)])
-        return peaks[int(np.argmax(coalition_scores(peaks, w[live], scale)))]
+        scores = coalition_scores(peaks, w[live], scale)
+        best = int(np.argmax(scores))
+        if self._grasps % 2 == 1:  # every other grasp: the rival placement, if there is one
+            rival = rival_placement(peaks, scores, scale, best, self.params.alternate_share)
+            if rival is not None:
+                return peaks[rival]
+        return peaks[best]

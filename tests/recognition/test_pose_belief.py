@@ -3,6 +3,8 @@ hypotheses moved by hand, and a misplaced box found from contacts on its surface
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import trimesh
@@ -23,6 +25,7 @@ from activetouch.recognition.pose_belief import (
     peak_offset,
     pose_grid,
     reflex_free_sites,
+    rival_placement,
 )
 
 BOX = (0.10, 0.06, 0.08)
@@ -47,6 +50,8 @@ def test_grid_covers_the_range_with_zero_in_it():
         PoseParams(step_m=0.0)
     with pytest.raises(ConfigError, match="pose_drift_m must be a number >= 0"):
         PoseParams(drift_m=-0.01)
+    with pytest.raises(ConfigError, match="pose_alternate_share must be a number >= 0"):
+        PoseParams(alternate_share=float("nan"))
 
 
 def test_signed_distance_of_a_box(box):
@@ -288,6 +293,17 @@ def test_the_grasps_go_where_most_of_the_likely_classes_have_the_object(box):
 
     belief.mesh_log_b = np.stack([peaked(b, 0.0), *(peaked(a, -0.5) for _ in range(3))])
     np.testing.assert_allclose(belief.placement_peak()[:2], a, atol=1e-3)
+    # B's class holds 0.29 of the mesh's probability against A's 0.71: under half of it, so
+    # B is no rival at the default share and every grasp goes to A ...
+    belief._grasps = 1
+    np.testing.assert_allclose(belief.placement_peak()[:2], a, atol=1e-3)
+    # ... but over 0.3 of it: every other grasp goes to B, so neither frame's training
+    # grasps have the edge in all of them.
+    belief.params = replace(belief.params, alternate_share=0.3)
+    np.testing.assert_allclose(belief.placement_peak()[:2], b, atol=1e-3)
+    belief._grasps = 2
+    np.testing.assert_allclose(belief.placement_peak()[:2], a, atol=1e-3)
+    belief._grasps = 0
     # With one of the three, B's class is the likelier and the grasps go to B.
     belief.mesh_log_b = belief.mesh_log_b[:2]
     np.testing.assert_allclose(belief.placement_peak()[:2], b, atol=1e-3)
@@ -319,3 +335,16 @@ def _gauss(k: int) -> float:
     """Weight at k steps of a Gaussian of one step's sigma, cut at 3 steps."""
     w = np.exp(-0.5 * np.arange(-3, 4) ** 2)
     return float(w[k + 3] / w.sum())
+
+
+def test_a_rival_placement_is_one_apart_from_the_best_with_enough_support():
+    scale = np.array([0.01, 0.01, np.deg2rad(7.5)])
+    peaks = np.array([[0.0, 0.0, 0.0], [0.012, 0.0, 0.0], [0.02, 0.0, 0.0], [0.0, 0.0, 0.5]])
+    scores = np.array([1.0, 0.9, 0.5, 0.6])
+    # 1.2 steps from the best is the same placement; of the two further off, the better one.
+    assert rival_placement(peaks, scores, scale, 0, 0.5) == 3
+    assert rival_placement(peaks, scores, scale, 0, 0.7) is None
+    assert rival_placement(peaks, scores, scale, 0, 0.0) is None  # sharing off
+    # Yaw wraps: 2 pi - 0.01 rad is 0.01 rad from 0, the same placement.
+    wrapped = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2 * np.pi - 0.01]])
+    assert rival_placement(wrapped, np.array([1.0, 1.0]), scale, 0, 0.5) is None
