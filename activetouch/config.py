@@ -358,6 +358,13 @@ class SessionConfig:
     # rest + noise_k sigma / sqrt(n), whichever is higher. 0: the close's own reading. Needs a
     # hand that tells its own thresholds and its sensors' sites; replaces confirm_readings.
     average_readings: int = 16
+    # Before each grasp after the first, the hand open since the last close: this many
+    # readings. A sensor in contact in most of them is ignored for the rest of the
+    # recognition; every other sensor's rest level moves to their mean, and its contact
+    # threshold with it (a barometer's zero walks with temperature: judged against the start's
+    # rest levels, a sensor drifting a unit a grasp read contact in every grasp from about the
+    # sixth). 0: the rest levels read at the start stand.
+    rezero_readings: int = 8
 
 
 @dataclass

@@ -158,6 +158,9 @@ class RecognitionResult:
 # A simulated hand's readings come at once; the session counts each as a ReFlex packet (40 Hz)
 # of robot time where it waits for them.
 SIM_READING_PERIOD_S = 0.025
+# A sensor's rest level has walked when the mean of the readings before a grasp is further
+# from the start's than this many standard errors.
+REZERO_SE = 3.0
 
 
 def display_label(label: str) -> str:
@@ -318,6 +321,11 @@ class RecognitionSession:
                 f"session.average_readings must be in 0..40 (readings at 40 Hz), got "
                 f"{cfg.average_readings}"
             )
+        if not 0 <= cfg.rezero_readings <= 40:
+            raise ConfigError(
+                f"session.rezero_readings must be in 0..40 (readings at 40 Hz), got "
+                f"{cfg.rezero_readings}"
+            )
         if cfg.average_readings and cfg.confirm_readings:
             raise ConfigError(
                 "session.average_readings and session.confirm_readings each decide the contacts "
@@ -347,6 +355,10 @@ class RecognitionSession:
         self.recorder = recorder
         self._masked = np.zeros(0, dtype=np.int64)
         self._thresholds: np.ndarray | None = None
+        # The rest levels read at the start, the contact thresholds then in force (the hand's
+        # own where higher) and the hand's own: re-zeroing shifts the last two by each
+        # sensor's walk since (`_rezero`).
+        self._rest0: tuple[RestLevels, np.ndarray, np.ndarray | None] | None = None
         # With `session.average_readings` engaged: the rest levels and the hand's own
         # thresholds, from which the mean of the readings after each close is judged.
         self._averaging: tuple[RestLevels, np.ndarray] | None = None
@@ -369,18 +381,64 @@ class RecognitionSession:
         ids = np.array(sorted(why), dtype=np.int64)
         self._masked = ids
         self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
-        self._thresholds, self._averaging = None, None
+        self._thresholds, self._averaging, self._rest0 = None, None, None
         if rest.readings > 1:
             thr = noise_thresholds(rest, self.cfg.noise_k)
             self.hand.set_contact_thresholds(thr.tolist())
             self._thresholds = thr
             self._averaging = self._averaging_levels(rest, thr)
+            own = self.hand.own_contact_thresholds()
+            own = None if own is None else np.asarray(own, dtype=np.float64)
+            self._rest0 = (rest, thr if own is None else np.maximum(thr, own), own)
         if why:
             log.warning(
                 "sensors ignored for this recognition: %s",
                 "; ".join(f"{i} {w}" for i, w in why.items()),
             )
         return why
+
+    def _rezero(self, res: RecognitionResult) -> None:
+        """Before a grasp after the first (the hand open since the last close): read it
+        `session.rezero_readings` times; ignore from now on, and report, the sensors in
+        contact in most readings (a zero that drifted up, a sensor stuck since the start),
+        and move every other sensor's contact threshold by the walk of its rest level since
+        the start (the readings' mean against the start's)."""
+        n = self.cfg.rezero_readings
+        if n < 1 or self._rest0 is None:
+            return
+        t = time.perf_counter()
+        pressures, contact = read_states(self.hand, n, timeout_s=2.0)
+        if self.hand.robot_seconds is None:
+            self._grasp_s += time.perf_counter() - t
+        else:
+            self._grasp_s += len(pressures) * SIM_READING_PERIOD_S
+        if not len(pressures):
+            return
+        touched = np.flatnonzero(contact.mean(axis=0) > 0.5)
+        new = np.setdiff1d(touched, self._masked)
+        if new.size:
+            why = f"in contact with the hand open before grasp {len(res.labels) + 1}"
+            for i in new:
+                res.masked_reasons[int(i)] = why
+            self._masked = np.union1d(self._masked, new).astype(np.int64)
+            res.masked_sensors = [int(i) for i in self._masked]
+            self.hand.mask_sensors(res.masked_sensors)
+            log.warning("sensors ignored from now on: %s (%s)", new.tolist(), why)
+        rest0, thr0, own0 = self._rest0
+        # Each zero's walk since the start (none for a sensor in contact: no zero to read);
+        # the thresholds in force move with it, so a contact needs the same press as then.
+        shift = pressures.mean(axis=0) - rest0.mean
+        shift[touched[touched < len(shift)]] = 0.0
+        # ... where it is more than the readings' own noise could make it (3 standard errors):
+        # a hand that has not drifted keeps the start's thresholds exactly.
+        sigma = np.maximum(rest0.std, float(np.median(rest0.std)))
+        shift[np.abs(shift) <= REZERO_SE * sigma / np.sqrt(len(pressures))] = 0.0
+        thr = thr0 + shift
+        self.hand.set_contact_thresholds(thr.tolist())
+        self._thresholds = thr
+        if self._averaging is not None and own0 is not None:
+            rest = dataclasses.replace(rest0, mean=rest0.mean + shift)
+            self._averaging = (rest, own0 + shift)
 
     def _averaging_levels(
         self, rest: RestLevels, noise: np.ndarray
@@ -636,6 +694,8 @@ class RecognitionSession:
             pose = self._target(pose_id)
             if rec is not None:
                 rec.wrist_goal(len(res.labels) + 1, pose_id, pose.as_array())
+            if res.labels:
+                self._rezero(res)
             try:
                 grasp = self._grasp_at(pose_id, pose)
             except UnreachableError as e:

@@ -16,6 +16,7 @@ from activetouch.recognition.grasp_likelihood import pose_at_offset, softmax_bel
 from activetouch.session.local import recognize_in_twin
 from activetouch.session.loop import (
     NO_LABEL,
+    SIM_READING_PERIOD_S,
     Progress,
     RecognitionSession,
     belief_table_of,
@@ -394,8 +395,17 @@ def _twin_session(home, model, wrist_wrap=None, seed=3, max_moves=6, on_progress
             on_progress,
             support_z=twin.support_z,
         )
+        rezero, rezeros = s._rezero, []
+
+        def counted(res):  # each re-zero before a grasp waits for its readings
+            rezeros.append(1)
+            rezero(res)
+
+        s._rezero = counted
         res = s.run()
-        assert res.grasp_s == pytest.approx(twin.hand.robot_seconds)  # the twin's hand time
+        reads = len(rezeros) * s.cfg.rezero_readings * SIM_READING_PERIOD_S
+        assert rezeros and reads > 0
+        assert res.grasp_s == pytest.approx(twin.hand.robot_seconds + reads)  # the twin's
         return res, wrist, durations
 
 
@@ -563,6 +573,57 @@ def test_a_stuck_sensor_is_ignored_for_the_whole_recognition(trained_home, small
     nominal = recognize_in_twin(small_model, lib, "cup", "tree", 3, small_config(), max_moves=4)
     assert nominal.masked_sensors == []
     assert res.masked_reasons == {stuck[0]: "in contact with the hand open"}
+
+
+def test_before_each_grasp_drifting_zeros_are_followed_and_runaway_ones_masked(
+    trained_home, small_model
+):
+    # Sensor zeros walking up to +-60 units a grasp; a contact is 20 units over the zero.
+    # Before each grasp after the first the session reads the open hand again: a sensor that
+    # walked past its threshold since the last reading is masked from then on and reported
+    # with the grasp it was found before; every other sensor's threshold moves with its zero,
+    # so one walking 9 to 16 units a grasp stays and reads no more contacts than without the
+    # walk (held to the start's thresholds it would read contact at rest by the third grasp).
+    # With the start's rest levels alone (rezero_readings=0) every sensor walking up ends in
+    # the grasps' contacts. Random grasps, no early stop: the same poses each time.
+    lib = ObjectLibrary(paths.objects_dir(trained_home))
+    counts: dict[str, list[int]] = {}
+
+    def run(name: str, drift: float, rezero: int):
+        cfg = small_config()
+        cfg.sim.fault_sensor_drift = drift
+        cfg.session.rezero_readings = rezero
+        cfg.session.confidence = 2.0
+        counts[name] = []
+        return recognize_in_twin(
+            small_model,
+            lib,
+            "cup",
+            "random",
+            7,
+            cfg,
+            max_moves=5,
+            on_progress=lambda p: counts[name].append(p.n_contacts),
+        )
+
+    drifting, nominal, stale = run("drift", 60.0, 8), run("nominal", 0.0, 8), run("stale", 60.0, 0)
+    assert drifting.pose_ids == nominal.pose_ids == stale.pose_ids and len(nominal.pose_ids) == 5
+    cfg = small_config()
+    cfg.sim.fault_sensor_drift = 60.0
+    with open_twin(lib.get("cup"), cfg.sim, seed=7) as twin:
+        rate = twin.hand.faulty.drift_rate
+    fast = {int(i) for i in np.flatnonzero(rate > 24.0)}
+    followed = {int(i) for i in np.flatnonzero((rate > 4.0) & (rate < 16.0))}
+    assert len(fast) >= 3 and len(followed) >= 3
+    assert fast <= set(drifting.masked_sensors) <= {int(i) for i in np.flatnonzero(rate > 16.0)}
+    assert {drifting.masked_reasons[i] for i in fast} == {
+        "in contact with the hand open before grasp 2"
+    }
+    assert nominal.masked_sensors == [] and stale.masked_sensors == []
+    # Followed, the drifting zeros add nothing: each grasp feels at most what the nominal hand
+    # felt (less the masked sensors' share); stale, the late grasps fill with drifting sensors.
+    assert all(d <= n for d, n in zip(counts["drift"], counts["nominal"], strict=True))
+    assert sum(counts["stale"][2:]) >= sum(counts["nominal"][2:]) + 10
 
 
 def test_dead_sensors_are_found_at_rest_and_left_out_of_the_likelihood(trained_home, small_model):
