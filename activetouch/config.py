@@ -363,8 +363,11 @@ class SessionConfig:
     # recognition; every other sensor's rest level moves to their mean, and its contact
     # threshold with it (a barometer's zero walks with temperature: judged against the start's
     # rest levels, a sensor drifting a unit a grasp read contact in every grasp from about the
-    # sixth). 0: the rest levels read at the start stand.
-    rezero_readings: int = 8
+    # sixth). 0 (the default): the rest levels read at the start stand. Measured on the
+    # tuning seeds with 8, the twin's drift (up to a unit a grasp) cost nothing either way,
+    # the readings 0.2 s a grasp (docs/benchmark.md, "Re-zeroing before each grasp"); a hand
+    # whose zeros walk faster wants it on.
+    rezero_readings: int = 0
 
 
 @dataclass

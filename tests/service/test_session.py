@@ -390,7 +390,7 @@ def _twin_session(home, model, wrist_wrap=None, seed=3, max_moves=6, on_progress
             wrist,
             model,
             pol,  # type: ignore[arg-type]
-            type(cfg.session)(max_moves=max_moves),
+            type(cfg.session)(max_moves=max_moves, rezero_readings=8),
             np.random.default_rng(seed),
             on_progress,
             support_z=twin.support_z,
