@@ -601,11 +601,14 @@ def apply_profile(cfg: Config, name: str, devices: dict[str, dict]) -> None:
         _apply(cfg, nested, "", devices)
 
 
-def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) -> dict[str, Any]:
+def profile_settings(
+    cfg: Config, model_config: dict[str, Any] | None = None, policy: str | None = None
+) -> dict[str, Any]:
     """The settings that distinguish the recognition method, as `train` and `recognize`
     print them (and results store them) beside the profile's name. `model_config`: the
     model's saved configuration, whose training settings (the pooling cell the library chose,
-    the grid) are the ones a recognition with it used."""
+    the grid) are the ones a recognition with it used; `policy`: the one this recognition
+    plans with, where the request named one over `planner.policy`."""
     rc, obs = cfg.recognition, cfg.observation
     cell, margin = obs.translation_cell_m, cfg.grid.margin_m
     if model_config:
@@ -616,7 +619,7 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
         "observation.translation_cell_m": cell,
         "observation.cells_from": obs.cells_from,
         "grid.margin_m": margin,
-        "planner.policy": cfg.planner.policy,
+        "planner.policy": policy or cfg.planner.policy,
     }
     if rc.belief == "pose":
         out["recognition.pose_range_m"] = rc.pose_range_m
@@ -635,9 +638,9 @@ def profile_settings(cfg: Config, model_config: dict[str, Any] | None = None) ->
     return out
 
 
-def profile_line(cfg: Config) -> str:
-    """'NAME: key value, ...' for a terminal."""
-    items = ", ".join(f"{k} {v}" for k, v in profile_settings(cfg).items())
+def profile_line(cfg: Config, policy: str | None = None) -> str:
+    """'NAME: key value, ...' for a terminal (`policy`: as `profile_settings`)."""
+    items = ", ".join(f"{k} {v}" for k, v in profile_settings(cfg, policy=policy).items())
     return f"{cfg.profile}: {items}"
 
 

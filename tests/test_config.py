@@ -100,6 +100,9 @@ def test_profiles_start_the_settings_and_the_file_and_overrides_still_win(tmp_pa
     assert cfg.profile == "paper" and cfg.recognition.belief == "pose"  # the file wins
     assert load_config(f, ["profile=robust"]).profile == "robust"  # the override wins
     assert profile_line(paper).startswith("paper: recognition.belief histogram")
+    # A recognition asked for another policy names that one, not the configured one.
+    assert "planner.policy tree," in profile_line(paper)
+    assert "planner.policy greedy," in profile_line(paper, "greedy")
     with pytest.raises(ConfigError, match="profile: 'fast' is not one of robust, paper"):
         load_config(None, ["profile=fast"])
 

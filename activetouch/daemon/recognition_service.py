@@ -803,7 +803,7 @@ class RecognitionService:
             masked_reasons={str(i): w for i, w in res.masked_reasons.items()},
             pose_estimate=res.pose_estimate,
             profile=self.cfg.profile,
-            settings=profile_settings(self.cfg, getattr(self.model, "config", None)),
+            settings=profile_settings(self.cfg, getattr(self.model, "config", None), req.policy),
         )
 
     def _stop_recognitions(self) -> None:

@@ -54,11 +54,15 @@ def check_request(policy: str, max_moves: int, seed: int = 0) -> None:
 
 
 def stamped(
-    res: RecognitionResult, cfg: Config, model: TrainedModel | None = None
+    res: RecognitionResult,
+    cfg: Config,
+    model: TrainedModel | None = None,
+    policy: str | None = None,
 ) -> RecognitionResult:
-    """`res` with the profile and method settings it ran with (`model`'s training ones)."""
+    """`res` with the profile and method settings it ran with (`model`'s training ones, the
+    `policy` it planned with)."""
     res.profile = cfg.profile
-    res.settings = profile_settings(cfg, model.config if model is not None else None)
+    res.settings = profile_settings(cfg, model.config if model is not None else None, policy)
     return res
 
 
@@ -110,6 +114,7 @@ def recognize_in_twin(
             on_progress,
             cancel,
             recorder,
+            policy_name,
         )
     with open_twin(spec, cfg.sim, seed=seed, workcell=cfg.workcell, hand=cfg.hand) as twin:
         if recorder is not None:
@@ -129,7 +134,7 @@ def recognize_in_twin(
             recorder=recorder,
             library=library,
         )
-        return stamped(session.run(), cfg, model)
+        return stamped(session.run(), cfg, model, policy_name)
 
 
 def _recognize_on_devices(
@@ -144,6 +149,7 @@ def _recognize_on_devices(
     on_progress: Callable[[Progress], None] | None,
     cancel: threading.Event | None,
     recorder: SafeRecorder | None = None,
+    policy_name: str | None = None,
 ) -> RecognitionResult:
     """The recognition on `make_devices(cfg)`: placed through the devices' ``sim/place``, the
     wrist told where the object stands, the table plane from the workcell (as the daemon
@@ -169,7 +175,7 @@ def _recognize_on_devices(
             recorder=recorder,
             library=library,
         )
-        return stamped(session.run(), cfg, model)
+        return stamped(session.run(), cfg, model, policy_name)
 
 
 @contextlib.contextmanager

@@ -608,6 +608,8 @@ def test_before_each_grasp_drifting_zeros_are_followed_and_runaway_ones_masked(
 
     drifting, nominal, stale = run("drift", 60.0, 8), run("nominal", 0.0, 8), run("stale", 60.0, 0)
     assert drifting.pose_ids == nominal.pose_ids == stale.pose_ids and len(nominal.pose_ids) == 5
+    # The result names the policy it planned with, not the configured one (tree).
+    assert nominal.settings["planner.policy"] == "random" and nominal.profile == "robust"
     cfg = small_config()
     cfg.sim.fault_sensor_drift = 60.0
     with open_twin(lib.get("cup"), cfg.sim, seed=7) as twin:

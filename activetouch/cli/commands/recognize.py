@@ -137,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--object is required: the twin needs the object to place")
     budget = args.max_moves if args.max_moves is not None else cfg.session.max_moves
     check_request(policy, budget, args.seed)
-    console.print(f"profile {profile_line(cfg)}", highlight=False)
+    console.print(f"profile {profile_line(cfg, policy)}", highlight=False)
     model = load_trained(model_path(root, args.model, cfg.hand.family))
     library = ObjectLibrary(paths.objects_dir(root))
     library.get(args.object)  # an unknown object fails here, before anything runs
