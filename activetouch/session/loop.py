@@ -397,6 +397,18 @@ class RecognitionSession:
             )
         return why
 
+    def _read_waiting(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """`read_states` of `n` readings (what a hand gives within 2 s), their time added to the
+        grasping seconds: the robot waits for them (wall time, or for a simulated hand, whose
+        readings come at once, a reading period each)."""
+        t = time.perf_counter()
+        pressures, contact = read_states(self.hand, n, timeout_s=2.0)
+        if self.hand.robot_seconds is None:
+            self._grasp_s += time.perf_counter() - t
+        else:
+            self._grasp_s += len(pressures) * SIM_READING_PERIOD_S
+        return pressures, contact
+
     def _rezero(self, res: RecognitionResult) -> None:
         """Before a grasp after the first (the hand open since the last close): read it
         `session.rezero_readings` times; ignore from now on, and report, the sensors in
@@ -406,12 +418,7 @@ class RecognitionSession:
         n = self.cfg.rezero_readings
         if n < 1 or self._rest0 is None:
             return
-        t = time.perf_counter()
-        pressures, contact = read_states(self.hand, n, timeout_s=2.0)
-        if self.hand.robot_seconds is None:
-            self._grasp_s += time.perf_counter() - t
-        else:
-            self._grasp_s += len(pressures) * SIM_READING_PERIOD_S
+        pressures, contact = self._read_waiting(n)
         if not len(pressures):
             return
         touched = np.flatnonzero(contact.mean(axis=0) > 0.5)
@@ -472,14 +479,7 @@ class RecognitionSession:
         assert self._averaging is not None
         rest, own = self._averaging
         n = self.cfg.average_readings
-        t = time.perf_counter()
-        pressures, _ = read_states(self.hand, n, timeout_s=2.0)
-        # The robot waits for these readings: wall time, or for a simulated hand (whose
-        # readings come at once) a reading period each.
-        if self.hand.robot_seconds is None:
-            self._grasp_s += time.perf_counter() - t
-        else:
-            self._grasp_s += len(pressures) * SIM_READING_PERIOD_S
+        pressures, _ = self._read_waiting(n)
         sites = self.hand.sensor_sites()
         if len(pressures) < n:
             log.warning("the hand gave %d of %d readings after the close", len(pressures), n)
@@ -528,7 +528,7 @@ class RecognitionSession:
         if averaged:
             grasp = self._averaged(grasp)
         elif self.cfg.confirm_readings > 0 and len(grasp.sensor_ids):
-            states = read_states(self.hand, self.cfg.confirm_readings, timeout_s=2.0)
+            states = self._read_waiting(self.cfg.confirm_readings)
             grasp = confirmed(grasp, *states, self._thresholds)
         self._hand(self.hand.open)
         if self._masked.size:
