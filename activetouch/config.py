@@ -360,13 +360,14 @@ class SessionConfig:
     average_readings: int = 16
     # Before each grasp after the first, the hand open since the last close: this many
     # readings. A sensor in contact in most of them is ignored for the rest of the
-    # recognition; every other sensor's rest level moves to their mean, and its contact
-    # threshold with it (a barometer's zero walks with temperature: judged against the start's
-    # rest levels, a sensor drifting a unit a grasp read contact in every grasp from about the
-    # sixth). 0 (the default): the rest levels read at the start stand. Measured on the
-    # tuning seeds with 8, the twin's drift (up to a unit a grasp) cost nothing either way,
-    # the readings 0.2 s a grasp (docs/benchmark.md, "Re-zeroing before each grasp"); a hand
-    # whose zeros walk faster wants it on.
+    # recognition; every other sensor's contact threshold moves by its zero's walk since the
+    # start (their mean against the start's, where beyond 3 standard errors: a barometer's
+    # zero walks with temperature, and judged against the start's level a sensor walking
+    # faster than its noise margin reads contact in every later grasp). 0 (the default): the
+    # rest levels read at the start stand. Measured on the tuning seeds with 8, the twin's
+    # drift (up to a unit a grasp) cost nothing either way, the readings 0.2 s a grasp
+    # (docs/benchmark.md, "Re-zeroing before each grasp"); a hand whose zeros walk faster
+    # wants it on.
     rezero_readings: int = 0
 
 
