@@ -88,12 +88,31 @@ def mask_reasons(
     return {i: why[i] for i in sorted(why) if 0 <= i < n_sensors}
 
 
+def noise_sigma(rest: RestLevels) -> np.ndarray:
+    """Each sensor's noise sigma at rest, at least the median over the sensors, so a few
+    readings that happen to agree do not give one sensor a hair trigger."""
+    return np.maximum(rest.std, float(np.median(rest.std)))
+
+
 def noise_thresholds(rest: RestLevels, k: float) -> np.ndarray:
-    """Per-sensor contact thresholds: the rest level plus `k` sigma. Each sensor's sigma is
-    at least the median over the sensors, so a few readings that happen to agree do not give
-    one sensor a hair trigger."""
-    sigma = np.maximum(rest.std, float(np.median(rest.std)))
-    return rest.mean + float(k) * sigma
+    """Per-sensor contact thresholds: the rest level plus `k` sigma (`noise_sigma`)."""
+    return rest.mean + float(k) * noise_sigma(rest)
+
+
+# A sensor's rest level has walked when the mean of new readings at rest is further from the
+# start's than this many standard errors.
+WALK_SE = 3.0
+
+
+def zero_walk(rest: RestLevels, pressures: np.ndarray, touched: np.ndarray) -> np.ndarray:
+    """(n,) how far each sensor's zero has walked since `rest` was read: the mean of the new
+    rest readings `pressures` (k, n) against `rest.mean`, where beyond `WALK_SE` standard
+    errors of that mean (else 0: a hand that has not drifted keeps its thresholds exactly);
+    0 for the sensors `touched` (in contact: no zero to read)."""
+    walk = pressures.mean(axis=0) - rest.mean
+    walk[touched] = 0.0
+    walk[np.abs(walk) <= WALK_SE * noise_sigma(rest) / np.sqrt(len(pressures))] = 0.0
+    return walk
 
 
 def mean_thresholds(rest: RestLevels, k: float, n: int, own: np.ndarray) -> np.ndarray:

@@ -80,6 +80,7 @@ from activetouch.session.contacts import (
     noise_thresholds,
     rest_levels,
     without_sensors,
+    zero_walk,
 )
 from activetouch.storage import atomic_write_bytes
 
@@ -158,9 +159,6 @@ class RecognitionResult:
 # A simulated hand's readings come at once; the session counts each as a ReFlex packet (40 Hz)
 # of robot time where it waits for them.
 SIM_READING_PERIOD_S = 0.025
-# A sensor's rest level has walked when the mean of the readings before a grasp is further
-# from the start's than this many standard errors.
-REZERO_SE = 3.0
 
 
 def display_label(label: str) -> str:
@@ -432,14 +430,8 @@ class RecognitionSession:
             self.hand.mask_sensors(res.masked_sensors)
             log.warning("sensors ignored from now on: %s (%s)", new.tolist(), why)
         rest0, thr0, own0 = self._rest0
-        # Each zero's walk since the start (none for a sensor in contact: no zero to read);
-        # the thresholds in force move with it, so a contact needs the same press as then.
-        shift = pressures.mean(axis=0) - rest0.mean
-        shift[touched[touched < len(shift)]] = 0.0
-        # ... where it is more than the readings' own noise could make it (3 standard errors):
-        # a hand that has not drifted keeps the start's thresholds exactly.
-        sigma = np.maximum(rest0.std, float(np.median(rest0.std)))
-        shift[np.abs(shift) <= REZERO_SE * sigma / np.sqrt(len(pressures))] = 0.0
+        # The thresholds in force move with each zero, so a contact needs the same press as then.
+        shift = zero_walk(rest0, pressures, touched)
         thr = thr0 + shift
         self.hand.set_contact_thresholds(thr.tolist())
         self._thresholds = thr

@@ -382,3 +382,17 @@ def test_averaged_contacts_under_heavy_noise_come_back_to_the_quiet_hands(box):
     assert len(quiet) >= 3
     # measured: the close differs from the quiet set by 1-3 sensors, the mean by none
     assert sum(close) >= 4 and max(averaged) == 0, (close, averaged)
+
+
+def test_a_zero_walks_only_beyond_the_readings_noise():
+    from activetouch.session.contacts import rest_levels, zero_walk
+
+    rng = np.random.default_rng(1)
+    rest = rest_levels(rng.normal(0.0, 2.0, (20, 38)), np.zeros((20, 38), dtype=bool))
+    now = rng.normal(0.0, 2.0, (8, 38))
+    now[:, 3] += 9.0  # walked 9 units: far beyond 3 standard errors of 8 readings (~2.1)
+    now[:, 5] += 9.0  # ... but in contact: no zero to read
+    walk = zero_walk(rest, now, np.array([5]))
+    assert walk[3] == pytest.approx(now[:, 3].mean() - rest.mean[3])
+    assert walk[5] == 0.0
+    assert np.count_nonzero(walk) == 1  # the others' noise moves no threshold
