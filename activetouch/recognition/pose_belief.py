@@ -459,13 +459,19 @@ NOMINAL_NATS = 1.0
 COALITION_WEIGHT = 1e-3
 
 
+def placement_gaps(a: np.ndarray, b: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """How far placements `a` are from `b` (..., 3: dx, dy, yaw; broadcast), in units of
+    `scale` (3,) along each axis together, the yaw difference wrapped to +-pi."""
+    d = a - b
+    d[..., 2] = np.angle(np.exp(1j * d[..., 2]))
+    return np.sqrt(np.sum((d / scale) ** 2, axis=-1))
+
+
 def coalition_scores(peaks: np.ndarray, weights: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """(n,) for each class's placement (`peaks` (n, 3): dx, dy, yaw), the probability of the
     classes (`weights` (n,)) whose own placements put the object within about `scale` (3,)
     of it: grasps placed there land on their training poses for all of them."""
-    d = peaks[:, None, :] - peaks[None, :, :]
-    d[..., 2] = np.angle(np.exp(1j * d[..., 2]))  # yaw differences wrapped to +-pi
-    near = np.exp(-0.5 * np.sum((d / scale) ** 2, axis=-1))
+    near = np.exp(-0.5 * placement_gaps(peaks[:, None, :], peaks[None, :, :], scale) ** 2)
     return near @ weights
 
 
@@ -484,9 +490,7 @@ def rival_placement(
     placements give neither that edge."""
     if share <= 0:
         return None
-    d = peaks - peaks[best]
-    d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
-    apart = np.flatnonzero(np.sqrt(np.sum((d / scale) ** 2, axis=1)) > APART_STEPS)
+    apart = np.flatnonzero(placement_gaps(peaks, peaks[best], scale) > APART_STEPS)
     if not apart.size:
         return None
     rival = int(apart[np.argmax(scores[apart])])
