@@ -309,21 +309,10 @@ class RecognitionSession:
             raise ConfigError(f"the move budget must be at least 1, got {cfg.max_moves}")
         if cfg.stable_grasps < 1:
             raise ConfigError(f"session.stable_grasps must be >= 1, got {cfg.stable_grasps}")
-        if not 0 <= cfg.confirm_readings <= 40:
-            raise ConfigError(
-                f"session.confirm_readings must be in 0..40 (readings at 40 Hz), got "
-                f"{cfg.confirm_readings}"
-            )
-        if not 0 <= cfg.average_readings <= 40:
-            raise ConfigError(
-                f"session.average_readings must be in 0..40 (readings at 40 Hz), got "
-                f"{cfg.average_readings}"
-            )
-        if not 0 <= cfg.rezero_readings <= 40:
-            raise ConfigError(
-                f"session.rezero_readings must be in 0..40 (readings at 40 Hz), got "
-                f"{cfg.rezero_readings}"
-            )
+        for name in ("confirm_readings", "average_readings", "rezero_readings"):
+            n = getattr(cfg, name)
+            if not 0 <= n <= 40:
+                raise ConfigError(f"session.{name} must be in 0..40 (readings at 40 Hz), got {n}")
         if cfg.average_readings and cfg.confirm_readings:
             raise ConfigError(
                 "session.average_readings and session.confirm_readings each decide the contacts "
