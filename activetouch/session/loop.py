@@ -70,18 +70,7 @@ from activetouch.recognition.pose_belief import (
     PoseParams,
     free_sites_for,
 )
-from activetouch.session.contacts import (
-    RestLevels,
-    above_thresholds,
-    confirmed,
-    mask_reasons,
-    mean_contacts,
-    mean_thresholds,
-    noise_thresholds,
-    rest_levels,
-    without_sensors,
-    zero_walk,
-)
+from activetouch.session.sensors import RecognitionSensors
 from activetouch.storage import atomic_write_bytes
 
 log = logging.getLogger(__name__)
@@ -340,49 +329,13 @@ class RecognitionSession:
         # grasps go there with `recognition.pose_follow`; zeros otherwise.
         self._offset = np.zeros(3)
         self.recorder = recorder
-        self._masked = np.zeros(0, dtype=np.int64)
-        self._thresholds: np.ndarray | None = None
-        # The rest levels read at the start, the contact thresholds then in force (the hand's
-        # own where higher) and the hand's own: re-zeroing shifts the last two by each
-        # sensor's walk since (`_rezero`).
-        self._rest0: tuple[RestLevels, np.ndarray, np.ndarray | None] | None = None
-        # With `session.average_readings` engaged: the rest levels and the hand's own
-        # thresholds, from which the mean of the readings after each close is judged.
-        self._averaging: tuple[RestLevels, np.ndarray] | None = None
-
-    def _read_at_rest(self) -> RestLevels:
-        """`session.rest_readings` distinct hand states (new stamps), the hand open; a hand
-        that streams slower than asked gives what it gave within 2 s."""
-        # A stalled stream (2 s) is the grasp's error, not this one's.
-        return rest_levels(*read_states(self.hand, self.cfg.rest_readings, timeout_s=2.0))
+        self.sensors = RecognitionSensors(hand, cfg, self._read_waiting)
 
     def _mask_at_rest(self) -> dict[int, str]:
-        """Open the hand, away from the object, read its sensors at rest, and for this
-        recognition ignore those its tactile calibration flagged, those in contact in most
-        readings (stuck) and those that read nothing (dead): by the hand where it can, so no
-        finger stops on them, and here in any case; and count a contact only above the
-        sensor's rest level plus `session.noise_k` sigma."""
+        """Open the hand, away from the object, and mask and set thresholds from its sensors
+        at rest (`RecognitionSensors.mask_at_rest`)."""
         self._hand(self.hand.open)
-        rest = self._read_at_rest()
-        why = mask_reasons(self.hand.sensor_flags(), rest, len(rest.mean))
-        ids = np.array(sorted(why), dtype=np.int64)
-        self._masked = ids
-        self.hand.mask_sensors(ids.tolist())  # [] too: clears an earlier recognition's
-        self._thresholds, self._averaging, self._rest0 = None, None, None
-        if rest.readings > 1:
-            thr = noise_thresholds(rest, self.cfg.noise_k)
-            self.hand.set_contact_thresholds(thr.tolist())
-            self._thresholds = thr
-            self._averaging = self._averaging_levels(rest, thr)
-            own = self.hand.own_contact_thresholds()
-            own = None if own is None else np.asarray(own, dtype=np.float64)
-            self._rest0 = (rest, thr if own is None else np.maximum(thr, own), own)
-        if why:
-            log.warning(
-                "sensors ignored for this recognition: %s",
-                "; ".join(f"{i} {w}" for i, w in why.items()),
-            )
-        return why
+        return self.sensors.mask_at_rest()
 
     def _read_waiting(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """`read_states` of `n` readings (what a hand gives within 2 s), their time added to the
@@ -397,77 +350,12 @@ class RecognitionSession:
         return pressures, contact
 
     def _rezero(self, res: RecognitionResult) -> None:
-        """Before a grasp after the first (the hand open since the last close): read it
-        `session.rezero_readings` times; ignore from now on, and report, the sensors in
-        contact in most readings (a zero that drifted up, a sensor stuck since the start),
-        and move every other sensor's contact threshold by the walk of its rest level since
-        the start (the readings' mean against the start's)."""
-        n = self.cfg.rezero_readings
-        if n < 1 or self._rest0 is None:
-            return
-        pressures, contact = self._read_waiting(n)
-        if not len(pressures):
-            return
-        touched = np.flatnonzero(contact.mean(axis=0) > 0.5)
-        new = np.setdiff1d(touched, self._masked)
-        if new.size:
-            why = f"in contact with the hand open before grasp {len(res.labels) + 1}"
-            for i in new:
-                res.masked_reasons[int(i)] = why
-            self._masked = np.union1d(self._masked, new).astype(np.int64)
-            res.masked_sensors = [int(i) for i in self._masked]
-            self.hand.mask_sensors(res.masked_sensors)
-            log.warning("sensors ignored from now on: %s (%s)", new.tolist(), why)
-        rest0, thr0, own0 = self._rest0
-        # The thresholds in force move with each zero, so a contact needs the same press as then.
-        shift = zero_walk(rest0, pressures, touched)
-        thr = thr0 + shift
-        self.hand.set_contact_thresholds(thr.tolist())
-        self._thresholds = thr
-        if self._averaging is not None and own0 is not None:
-            rest = dataclasses.replace(rest0, mean=rest0.mean + shift)
-            self._averaging = (rest, own0 + shift)
-
-    def _averaging_levels(
-        self, rest: RestLevels, noise: np.ndarray
-    ) -> tuple[RestLevels, np.ndarray] | None:
-        """`rest` and the hand's own thresholds, where the noise thresholds at rest (`noise`)
-        lift the median sensor over the hand's own: the close's reading then misses light
-        contacts, and the session judges the mean of `session.average_readings` readings.
-        None: off, a quiet hand (its close reads as in training), or a hand that does not tell
-        its own thresholds or its sensors' sites."""
-        n = self.cfg.average_readings
-        if n < 1:
-            return None
-        own = self.hand.own_contact_thresholds()
-        if own is None or self.hand.sensor_sites() is None:
-            log.warning(
-                "session.average_readings=%d: this hand does not tell its own contact "
-                "thresholds or its sensors' sites; contacts are decided on the close's reading",
-                n,
-            )
-            return None
-        own = np.asarray(own, dtype=np.float64)
-        if np.median(noise) <= np.median(own):
-            return None
-        return rest, own
-
-    def _averaged(self, grasp: Grasp) -> Grasp:
-        """The close's contacts decided again on the mean of new readings of the closed hand
-        (`mean_contacts`), the sensors placed where the hand says they are. A hand that gives
-        fewer readings within 2 s is judged on those (its thresholds for that many); none:
-        the close's grasp as it is."""
-        assert self._averaging is not None
-        rest, own = self._averaging
-        n = self.cfg.average_readings
-        pressures, _ = self._read_waiting(n)
-        sites = self.hand.sensor_sites()
-        if len(pressures) < n:
-            log.warning("the hand gave %d of %d readings after the close", len(pressures), n)
-        if not len(pressures) or sites is None:
-            return grasp
-        thr = mean_thresholds(rest, self.cfg.noise_k, len(pressures), own)
-        return mean_contacts(grasp, pressures, thr, np.asarray(sites))
+        """Before a grasp after the first: re-zero the sensors (`session.rezero_readings`)
+        and report those newly masked."""
+        new = self.sensors.rezero(len(res.labels) + 1)
+        if new:
+            res.masked_reasons.update(new)
+            res.masked_sensors = [int(i) for i in self.sensors.masked]
 
     def _hand(self, fn: Callable[[], Grasp | None]) -> Grasp | None:
         """`fn()` (a hand command), its time added to the grasping seconds: the hand's robot
@@ -505,17 +393,9 @@ class RecognitionSession:
         self.wrist.move_to(pose)  # raises UnreachableError
         grasp = self._hand(self.hand.guarded_close)
         assert grasp is not None
-        averaged = self._averaging is not None
-        if averaged:
-            grasp = self._averaged(grasp)
-        elif self.cfg.confirm_readings > 0 and len(grasp.sensor_ids):
-            states = self._read_waiting(self.cfg.confirm_readings)
-            grasp = confirmed(grasp, *states, self._thresholds)
+        grasp = self.sensors.after_close(grasp)
         self._hand(self.hand.open)
-        if self._masked.size:
-            grasp = without_sensors(grasp, self._masked)
-        if self._thresholds is not None and not averaged:
-            grasp = above_thresholds(grasp, self._thresholds)
+        grasp = self.sensors.counted(grasp)
         if self.support_z is not None:
             grasp = drop_support_contacts(grasp, pose, self.support_z, self.support_margin_m)
         return grasp
@@ -588,7 +468,7 @@ class RecognitionSession:
             nonlocal state, streak
             visited.append(pose_id)
             tb = time.perf_counter()
-            p, felt, cells = belief.update(grasp, pose, self._masked)
+            p, felt, cells = belief.update(grasp, pose, self.sensors.masked)
             res.belief_s += time.perf_counter() - tb
             best = int(np.argmax(p))
             if self._follow and belief.pose is not None and felt:
@@ -624,7 +504,7 @@ class RecognitionSession:
                         "total_s": res.total_s,
                         "elapsed_s": time.perf_counter() - t0,
                     },
-                    ignored=self._masked,
+                    ignored=self.sensors.masked,
                     support_z=self.support_z,
                 )
             # Consecutive confident grasps agreeing on the same top class.

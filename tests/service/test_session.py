@@ -743,12 +743,12 @@ def test_a_hand_that_stops_streaming_after_the_close_is_judged_on_the_readings_i
     with open_twin(lib.get("cup"), cfg.sim, seed=6) as twin:
         s = _random_session(QuietAfterClose(twin.hand), twin.wrist, small_model, cfg, max_moves=2)
         seen: list[Grasp] = []
-        close = s._averaged
-        s._averaged = lambda g: seen.append(close(g)) or seen[-1]  # type: ignore[method-assign]
+        close = s.sensors.averaged
+        s.sensors.averaged = lambda g: seen.append(close(g)) or seen[-1]  # type: ignore[method-assign]
         with caplog.at_level("WARNING"):
             s.run()
-        assert s._averaging is not None
-        rest, own = s._averaging
+        assert s.sensors.averaging is not None
+        rest, own = s.sensors.averaging
     assert "gave 1 of 16 readings after the close" in caplog.text
     one = np.maximum(rest.mean + 5.0 * np.maximum(rest.std, np.median(rest.std)), own)
     for g in seen:
