@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from activetouch.errors import PlanningError
-from activetouch.planning import mcts, simulated_belief
+from activetouch.planning import mcts_kernels, simulated_belief
 from activetouch.planning.mcts import TreeSearch, model_arrays
 from activetouch.planning.observation_model import ObservationModel, outcome_probabilities
 from activetouch.planning.synthetic import synthetic_problem
@@ -491,8 +491,8 @@ def _sampler_at(synth, root: int) -> tuple:
 
 
 def _draws(n: int, *args) -> np.ndarray:
-    """`n` outcomes of `mcts._sample_outcome(*args)`."""
-    return np.array([mcts._sample_outcome(*args) for _ in range(n)])
+    """`n` outcomes of `mcts_kernels._sample_outcome(*args)`."""
+    return np.array([mcts_kernels._sample_outcome(*args) for _ in range(n)])
 
 
 def _classes_per_pair(m: ObservationModel) -> dict[tuple[int, int], int]:
@@ -520,7 +520,7 @@ def test_sampled_observations_follow_eq4(synth) -> None:
     a_marg = next(a for a in sorted(seen_marg) if (a, 0) not in seen_tally)
     cases["marg"] = (0, a_marg)
     cases["none"] = (0, next(a for a in range(A) if a not in seen_marg))
-    mcts.seed_numba(123)
+    mcts_kernels.seed_numba(123)
     for kind, (cell, action) in cases.items():
         counters = np.zeros(3, dtype=np.int64)
         n = 20000
@@ -587,7 +587,7 @@ def test_per_class_backoff_follows_its_reference(synth) -> None:
     by_pair = _classes_per_pair(m)
     cell, action = next(p for p, n in by_pair.items() if n < m.n_classes)
     counters = np.zeros(3, dtype=np.int64)
-    mcts.seed_numba(7)
+    mcts_kernels.seed_numba(7)
     n = 20000
     draws = _draws(n, mt, kern, action, cell, counts, S, counters, True)
     expect = outcome_probabilities_per_class(m, cell, action, p_y)
@@ -607,11 +607,11 @@ def test_tempered_eq4_draws_classes_from_the_flattened_belief(synth) -> None:
     cell, action = max(by_pair, key=by_pair.get)  # the pair most classes answer
     tau = 4.0
     flat = p_y ** (1 / tau) / np.sum(p_y ** (1 / tau))
-    np.testing.assert_allclose(mcts._tempered(p_y, 1 / tau), flat, atol=1e-12)
-    assert mcts._tempered(p_y, 1.0) is p_y
+    np.testing.assert_allclose(mcts_kernels._tempered(p_y, 1 / tau), flat, atol=1e-12)
+    assert mcts_kernels._tempered(p_y, 1.0) is p_y
     expect = outcome_probabilities(m, cell, action, flat)
     assert np.abs(expect - outcome_probabilities(m, cell, action, p_y)).max() > 0.05
-    mcts.seed_numba(11)
+    mcts_kernels.seed_numba(11)
     counters = np.zeros(3, dtype=np.int64)
     n = 20000
     draws = _draws(n, mt, kern, action, cell, counts, S, counters, False, 1 / tau)
