@@ -416,9 +416,10 @@ def test_robot_time_of_a_floating_twin_recognition(trained_home, small_model):
     assert res.motion_s == pytest.approx(sum(durations), rel=1e-9) and res.motion_s > 0
     assert res.motion_s == pytest.approx(wrist.robot_seconds)  # a fresh twin: all of it
     assert res.motion_planning_s == 0.0  # a floating wrist plans nothing
-    # The twin's hand keeps robot time (spool steps at the 40 Hz packet rate), far more than
-    # the milliseconds of wall time it takes: a ReFlex close takes about a second.
-    assert 0.3 < res.grasp_s / res.moves < 3.0 and res.grasp_s > res.elapsed_s
+    # The twin's hand keeps robot time (spool steps at the 40 Hz packet rate; `_twin_session`
+    # checks grasp_s is the hand's own count), not wall time: a ReFlex close takes about a
+    # second. (Not compared with the wall time: on a cold start compiling takes longer.)
+    assert 0.3 < res.grasp_s / res.moves < 3.0
     assert res.planning_s == res.search_s  # no motion planning
     assert res.total_s == pytest.approx(res.motion_s + res.grasp_s + res.planning_s)
     # Robot time after each grasp: rising, the last one the whole recognition's.

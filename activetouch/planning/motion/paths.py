@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -76,10 +77,11 @@ def rrt_connect(
     step_rad: float,
     step_m: float,
     with_object: bool = True,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> np.ndarray | None:
     """A collision-free joint path q0 -> q1 (waypoints, re-checked densely) from OMPL's
     RRT-Connect with the coal check as validity: the shortcut path, else the raw one; None if
-    none passes within `time_s`."""
+    none passes within `time_s` (by `clock`; OMPL's own search times itself)."""
     # deferred: OMPL only when a joint path is planned
     from ompl import base as ob
     from ompl import geometric as og
@@ -115,14 +117,14 @@ def rrt_connect(
     # OMPL checks its edges at discrete states and the shortcutter can cut a corner between
     # them, so a found path may fail the dense check. Then the raw path is tried, and failing
     # that the search starts again while time remains (giving up at once failed ~7 % of moves).
-    deadline = time.perf_counter() + float(time_s)
-    while (left := deadline - time.perf_counter()) > 0:
+    deadline = clock() + float(time_s)
+    while (left := deadline - clock()) > 0:
         ss.clear()
         if not ss.solve(left) or not ss.haveExactSolutionPath():
             return None
         raw = _states(ss.getSolutionPath(), n)
         candidates = [raw]
-        left = deadline - time.perf_counter()
+        left = deadline - clock()
         if left > 1e-3:  # OMPL reads a zero budget as "simplify without a time limit"
             ss.simplifySolution(min(0.2, left))
             candidates.insert(0, _states(ss.getSolutionPath(), n))

@@ -1,5 +1,3 @@
-import time
-
 import numpy as np
 import pytest
 
@@ -57,13 +55,14 @@ def test_move_reaches_the_pose_and_trajectory_is_clean(motion, baxter):
 
 
 def test_unreachable_goals_say_why_quickly(motion):
-    t = time.perf_counter()
     with pytest.raises(UnreachableError, match="no IK solution"):
         motion.plan(Pose([3.0, 0.0, 0.0], [0, 0, 0, 1]))
+    # Quickly: the warm start, the table's nearest seeds and the capped restarts, no more.
+    ik = motion.ik
+    assert 0 < ik.stats.attempts <= 1 + ik.n_seeds + ik.restarts
     # Beside the object, hand below the table top: IK converges, the hand is in the table.
     with pytest.raises(UnreachableError, match="collision at the goal"):
         motion.plan(Pose([-0.2, 0.0, -0.07], look_at_quaternion(np.array([1.0, 0, 0]), 0.0)))
-    assert time.perf_counter() - t < 10.0  # bounded: restarts are capped
     # The arm has not moved.
     assert not motion.arm.trajectories
 
