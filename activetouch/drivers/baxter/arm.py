@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from activetouch.clock import SYSTEM_CLOCK, Clock
 from activetouch.device_types import ArmConfig
 from activetouch.drivers.baxter import ros1
 from activetouch.errors import (
@@ -226,9 +227,13 @@ def not_following(q_start: np.ndarray, q: np.ndarray, side: str) -> str:
 
 class BaxterArm(Arm):
     """One Baxter arm over zenoh-bridge-ros1. Pass `session` (a `zenoh.Session`) to share one;
-    otherwise `connect()` opens its own from the config's endpoints and closes it again."""
+    otherwise `connect()` opens its own from the config's endpoints and closes it again.
+    `clock` paces the command stream (its schedule and the waits between commands; a test
+    clock judges the stream in the driver's own time); state freshness is on the system's."""
 
-    def __init__(self, cfg: BaxterArmConfig, session: Any = None) -> None:
+    def __init__(
+        self, cfg: BaxterArmConfig, session: Any = None, clock: Clock = SYSTEM_CLOCK
+    ) -> None:
         cfg.check()
         self.cfg = cfg
         self._names = ros1.joint_names(cfg.side)
@@ -243,7 +248,8 @@ class BaxterArm(Arm):
         self._zs: Any = None
         self._session: Any = None
         self._codec: ros1.Ros1Codec | None = None
-        self._latch = StopLatch()
+        self._clock = clock
+        self._latch = StopLatch(clock)
         self._pub_lock = threading.Lock()  # orders trajectory commands before a stop's hold
         self._cond = threading.Condition()
         self._joints: _Stamped | None = None  # (position, velocity, stamp)
@@ -500,10 +506,11 @@ class BaxterArm(Arm):
         settle_deadline = times[-1] + cfg.settle_timeout_s
         next_settings = 0.0
         q_start, _ = self._fresh_joints()
-        t0 = time.monotonic()
+        clock = self._clock
+        t0 = clock.monotonic()
         k = 0
         while True:
-            t = time.monotonic() - t0
+            t = clock.monotonic() - t0
             if t >= next_settings:  # re-sent each second: a bridge does not latch them
                 self._send_settings()
                 next_settings = t + 1.0
@@ -538,7 +545,7 @@ class BaxterArm(Arm):
                     )
             k += 1
             # absolute schedule keeps the command rate at command_hz; wakes at once on stop
-            if self._latch.wait(max(t0 + k * period - time.monotonic(), 0.0)):
+            if self._latch.wait(max(t0 + k * period - clock.monotonic(), 0.0)):
                 break
         raise StoppedError("execute: the arm was stopped")
 

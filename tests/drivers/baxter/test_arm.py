@@ -43,7 +43,10 @@ def robot(endpoint: str) -> Iterator[BaxterEmulator]:
 
 
 def make_arm(endpoint: str, **kw) -> BaxterArm:
-    kw.setdefault("connect_timeout_s", 3.0)
+    kw.setdefault("connect_timeout_s", 30.0)
+    # states fresh for 5 s (default 0.5): a loaded machine may delay them; the tests of that
+    # timeout pass it themselves
+    kw.setdefault("state_timeout_s", 5.0)
     return BaxterArm(BaxterArmConfig(connect=[endpoint], **kw))
 
 
@@ -63,6 +66,47 @@ def ramp(q0: np.ndarray, delta: dict[int, float], duration: float, n: int = 21) 
     t = np.linspace(0.0, duration, n)
     s = (1 - np.cos(np.pi * t / duration)) / 2
     return JointTrajectory(LEFT, t, q0 + (q1 - q0) * s[:, None])
+
+
+def line(q0: np.ndarray, joint: int, delta: float, duration: float) -> JointTrajectory:
+    """Constant speed from q0 by `delta` on one joint: slow, long ones give a test seconds to
+    act on a motion's progress while no machine could finish it first."""
+    q1 = q0.copy()
+    q1[joint] += delta
+    return JointTrajectory(LEFT, np.array([0.0, duration]), np.stack([q0, q1]))
+
+
+def when(cond, action) -> threading.Thread:
+    """Run `action` in another thread once `cond()` holds (progress, never a time; 30 s bound)."""
+
+    def run() -> None:
+        if wait_for(cond, timeout=30.0):
+            action()
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+def ticks_later(robot: BaxterEmulator, n: int) -> None:
+    """Return once the emulator ran `n` more control ticks (its own time, not the wall's)."""
+    seq = robot._seq
+    assert wait_for(lambda: robot._seq >= seq + n, timeout=30.0)
+
+
+class EstopPast:
+    """A body on the emulated joints that presses the red button in the control tick taking
+    left_s0 past `at`: mid-trajectory at the same angle on any machine."""
+
+    def __init__(self, robot: BaxterEmulator, at: float) -> None:
+        self.robot, self.at = robot, at
+        self.pressed_at: np.ndarray | None = None
+
+    def follow(self, side: str, q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+        if side == "left" and self.pressed_at is None and q_to[0] >= self.at:
+            self.pressed_at = q_to.copy()
+            self.robot._estop(button=1, source=1)  # press_estop(); the tick holds its lock
+        return q_to
 
 
 def test_config_through_the_registry() -> None:
@@ -108,8 +152,14 @@ def test_refuses_before_anything_moves(robot: BaxterEmulator, arm: BaxterArm) ->
     ):
         with pytest.raises(UnreachableError):
             arm.execute(traj)
-    time.sleep(0.05)
-    assert len(robot.commands("left")) == n
+    # Nothing was sent: a stop's hold, on the same publisher, is the first command to arrive
+    # (anything sent before it would arrive first, however slow the machine).
+    arm.stop()
+    assert wait_for(lambda: len(robot.commands("left")) > n, timeout=30.0)
+    cmds = robot.commands("left")[n:]
+    assert len(cmds) == 1
+    np.testing.assert_allclose(cmds[0][3], q0, atol=0.01)  # the hold where the arm stands
+    arm.clear_stop()
 
 
 def test_names_are_reordered(robot: BaxterEmulator, arm: BaxterArm) -> None:
@@ -150,13 +200,15 @@ def test_lagging_joint_aborts_with_its_name(robot: BaxterEmulator, arm: BaxterAr
 
 def test_estop_mid_trajectory_stops(robot: BaxterEmulator, arm: BaxterArm) -> None:
     q0 = arm.joint_state().position
-    threading.Timer(0.3, robot.press_estop).start()
+    robot.body = button = EstopPast(robot, q0[0] + 0.1)
     with pytest.raises(StoppedError, match="e-stopped"):
         arm.execute(ramp(q0, {0: 1.0}, 1.5))
     q_stop = robot.positions("left")
-    time.sleep(0.3)
+    assert button.pressed_at is not None
+    np.testing.assert_array_equal(q_stop, button.pressed_at)  # stopped in the tick pressed
+    ticks_later(robot, 30)
     np.testing.assert_array_equal(robot.positions("left"), q_stop)  # it does not move on
-    assert 0.05 < q_stop[0] - q0[0] < 0.9
+    assert 0.1 <= q_stop[0] - q0[0] < 0.9
     # enable refuses while the button is pressed; after release, enable resets first
     with pytest.raises(StoppedError, match="button"):
         arm.enable()
@@ -168,14 +220,26 @@ def test_estop_mid_trajectory_stops(robot: BaxterEmulator, arm: BaxterArm) -> No
 
 def test_stop_from_another_thread_holds_and_latches(robot: BaxterEmulator, arm: BaxterArm) -> None:
     q0 = arm.joint_state().position
-    threading.Timer(0.3, arm.stop).start()
+    n = len(robot.commands("left"))
+    # stopped once the arm is on its way (+0.03 rad of 1.5 over 30 s: no machine ends it first)
+    stopper = when(lambda: robot.positions("left")[0] > q0[0] + 0.03, arm.stop)
     with pytest.raises(StoppedError):
-        arm.execute(ramp(q0, {0: 1.0}, 1.5))
+        arm.execute(line(q0, 0, 1.5, 30.0))
+    stopper.join(30.0)
+    assert not stopper.is_alive()
+
+    def hold_arrived() -> bool:
+        # the hold is the measured position, behind every stream command (the arm lags them)
+        s0 = [c[3][0] for c in robot.commands("left")[n:]]
+        return len(s0) >= 2 and s0[-1] < max(s0[:-1])
+
     # let the hold arrive (through Zenoh: later on a loaded machine): the robot holds
-    wait_for(lambda: robot.holding("left"), timeout=30.0)
-    last = robot.commands("left")[-1][3]
-    time.sleep(0.1)
-    assert robot.commands("left")[-1][3] == last  # nothing is sent after the hold
+    assert wait_for(hold_arrived, timeout=30.0)
+    assert wait_for(lambda: robot.holding("left"), timeout=30.0)
+    count, last = len(robot.commands("left")), robot.commands("left")[-1][3]
+    ticks_later(robot, 20)
+    # nothing is sent after the hold
+    assert len(robot.commands("left")) == count and robot.commands("left")[-1][3] == last
     # the last command is the hold, near where the arm is (not further along the ramp)
     assert abs(last[0] - robot.positions("left")[0]) < 0.05
     with pytest.raises(StoppedError):
@@ -200,34 +264,60 @@ def test_super_stop_on_stop_asserts_the_robots_estop(robot: BaxterEmulator, endp
         a.disconnect()
 
 
-def test_lost_joint_states_are_an_error_not_a_hang(robot: BaxterEmulator, arm: BaxterArm) -> None:
-    q0 = arm.joint_state().position
-    dropped: list[float] = []
+def test_lost_joint_states_are_an_error_not_a_hang(robot: BaxterEmulator, endpoint: str) -> None:
+    arm = make_arm(endpoint, state_timeout_s=0.5)  # the timeout under test
+    arm.connect()
+    try:
+        q0 = arm.joint_state().position
+        n = len(robot.commands("left"))
+        at_drop: list[float] = []
 
-    def drop() -> None:
-        dropped.append(time.monotonic())
-        robot.faults.drop_states = True
+        def drop() -> None:
+            at_drop.append(max(c[3][0] for c in robot.commands("left")[n:]))
+            robot.faults.drop_states = True
 
-    threading.Timer(0.2, drop).start()
-    with pytest.raises(NodeUnavailableError, match="lost"):
-        arm.execute(ramp(q0, {0: 0.5}, 2.0))
-    # Not a hang: after the states stopped the driver sent at most the commands of its state
-    # timeout (0.5 s, ~50 at 100 Hz); playing the ramp out would be ~180 more.
-    after = [c for c in robot.commands("left") if c[0] > dropped[0]]
-    assert len(after) <= 100
-    with pytest.raises(NodeUnavailableError):
-        arm.joint_state()
+        # the states stop once the stream is under way (10 commands in)
+        dropper = when(lambda: len(robot.commands("left")) >= n + 10, drop)
+        with pytest.raises(NodeUnavailableError, match="lost"):
+            arm.execute(line(q0, 0, 0.6, 60.0))  # 0.01 rad/s for a minute
+        dropper.join(30.0)
+        assert at_drop
+        # Not a hang: the driver gave up within its state timeout (0.5 s, 0.005 rad of this
+        # ramp) of the states stopping; the bound is a hang bound (30 s of the ramp, 0.3 rad),
+        # playing the ramp out would command 0.6 rad
+        reached = max(c[3][0] for c in robot.commands("left")[n:])
+        assert reached - at_drop[0] < 0.3
+        with pytest.raises(NodeUnavailableError):
+            arm.joint_state()
+    finally:
+        arm.disconnect()
 
 
-def test_delayed_joint_states_abort_as_lost(robot: BaxterEmulator, arm: BaxterArm) -> None:
-    robot.faults.state_delay_s = 0.8  # states keep coming, but 0.8 s old (header stamps)
-    time.sleep(1.2)
-    n = robot._seq
-    with pytest.raises(NodeUnavailableError, match="lost"):
-        arm.joint_state()
-    robot.faults.state_delay_s = 0.0
-    time.sleep(0.1)
-    assert robot._seq > n and arm.joint_state().names == LEFT  # back once timely again
+def test_delayed_joint_states_abort_as_lost(robot: BaxterEmulator, endpoint: str) -> None:
+    arm = make_arm(endpoint, state_timeout_s=0.5)  # the timeout under test
+    arm.connect()
+
+    def fresh() -> bool:
+        try:
+            arm.joint_state()
+        except NodeUnavailableError:
+            return False
+        return True
+
+    try:
+        assert fresh()
+        robot.faults.state_delay_s = 0.8  # states keep coming, but 0.8 s old (header stamps)
+        # 100 control ticks take at least 1 s: the states published now are the delayed ones
+        ticks_later(robot, 100)
+        assert wait_for(lambda: not fresh(), timeout=30.0)
+        n = robot._seq
+        with pytest.raises(NodeUnavailableError, match="lost"):
+            arm.joint_state()
+        robot.faults.state_delay_s = 0.0
+        assert wait_for(fresh, timeout=30.0)  # back once timely again
+        assert robot._seq > n and arm.joint_state().names == LEFT
+    finally:
+        arm.disconnect()
 
 
 def test_connect_without_a_robot_times_out(endpoint: str) -> None:
@@ -324,20 +414,29 @@ def test_command_stream_loss_leaves_the_emulated_arm_holding(
         "19bfec8434dd568ab3c633d187c36f2e",
         "/robot/limb/left/joint_command",
     )
-    goal = robot.positions("left")
+    start = robot.positions("left")
+    goal = start.copy()
     goal[0] += 1.5
+    last = goal.copy()
+    last[0] -= 1e-6  # the stream's last command, told apart by its value
     with ZenohSession(ZenohSettings.client(endpoint)) as zs:
         pub = zs.session.declare_publisher(key)
-        time.sleep(0.2)
         raw = hb.joint_command(1, list(goal), list(LEFT))
-        for _ in range(30):  # 0.3 s at 100 Hz
+        # stream (at about 100 Hz) until the arm is on its way: +0.1 rad of 1.5
+        for _ in range(3000):  # a 30 s hang bound
+            if robot.positions("left")[0] > start[0] + 0.1:
+                break
             pub.put(raw)
-            time.sleep(0.01)
-        t_last = time.monotonic()
+            time.sleep(0.01)  # pacing only: nothing below depends on it
+        pub.put(hb.joint_command(1, list(last), list(LEFT)))
         pub.undeclare()
-    q_moving = robot.positions("left")[0]
-    time.sleep(0.2 + 0.05 - (time.monotonic() - t_last))  # timeout 0.2 s + one tick
+    assert robot.positions("left")[0] > start[0] + 0.1
+    # the last command arrived (and all before it: one publisher, in order); then the robot
+    # holds after its command timeout
+    assert wait_for(lambda: robot.commands("left")[-1][3][0] == last[0], timeout=30.0)
+    assert wait_for(lambda: robot.holding("left"), timeout=30.0)
+    ticks_later(robot, 2)  # a control tick that began before the timeout has ended
     q_held = robot.positions("left")
-    time.sleep(0.4)
-    assert q_moving < goal[0] - 0.5  # it was still on its way when the stream stopped
+    ticks_later(robot, 40)
     np.testing.assert_array_equal(robot.positions("left"), q_held)
+    assert q_held[0] < goal[0] - 0.5  # it holds part-way: it was still on its way

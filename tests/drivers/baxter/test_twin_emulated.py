@@ -63,7 +63,9 @@ class WallTwin:
 @pytest.fixture
 def emulated() -> Iterator[tuple[TwinEmulatedBaxterArm, WallTwin]]:
     twin = WallTwin()
-    arm = start_emulated(BaxterArmConfig(emulate="twin", connect_timeout_s=3.0), twin)
+    # states fresh for 5 s (default 0.5): a loaded machine may delay them, nothing here tests that
+    cfg = BaxterArmConfig(emulate="twin", connect_timeout_s=30.0, state_timeout_s=5.0)
+    arm = start_emulated(cfg, twin)
     try:
         arm.connect()
         yield arm, twin
@@ -78,6 +80,12 @@ def ramp(q0: np.ndarray, joint: int, delta: float, duration: float) -> JointTraj
     q1 = q0.copy()
     q1[joint] += delta
     return JointTrajectory(LEFT, t, q0 + (q1 - q0) * s[:, None])
+
+
+def ticks_later(emulator, n: int) -> None:
+    """Return once the emulator ran `n` more control ticks (its own time, not the wall's)."""
+    seq = emulator._seq
+    assert wait_for(lambda: emulator._seq >= seq + n, timeout=30.0)
 
 
 def test_settings() -> None:
@@ -100,15 +108,22 @@ def test_the_twin_follows_the_emulated_joints_only_during_a_motion(emulated) -> 
     arm, twin = emulated
     q0 = arm.joint_state().position
     np.testing.assert_allclose(q0, READY, atol=1e-12)  # the emulator started at the twin's ready
-    arm.execute(ramp(q0, 2, 0.2, 0.6))
-    # The driver's bytes went through the emulator; the twin was moved by its control loop.
+    traj = ramp(q0, 2, 0.2, 0.6)
+    arm.execute(traj)
+    # The driver's bytes went through the emulator, ending at the goal exactly (it was sent
+    # before execute returned; it may arrive later on a loaded machine); the twin was moved by
+    # the emulator's control loop.
+    goal = tuple(float(x) for x in np.asarray(traj.positions)[-1])
+    assert wait_for(lambda: arm.emulator.commands("left")[-1][3] == goal, timeout=30.0)
     cmds = arm.emulator.commands("left")
-    assert len(cmds) >= 50 and all(c[1] == 1 and c[2] == LEFT for c in cmds)
-    assert twin.executed > 20
+    assert cmds and all(c[1] == 1 and c[2] == LEFT for c in cmds)
+    assert cmds[-1][3] == goal
+    assert twin.executed > 0
     # Steps in the emulator's loop; the object's scene beforehand, in the caller's thread.
     assert twin.threads == {"baxter-emulator", f"sync_object in {threading.current_thread().name}"}
-    # After the motion the arm holds, and all three agree on where it is.
-    assert arm.emulator.holding("left")
+    # After the motion the arm holds (execute waits for that, up to 1.2 s: longer only if a
+    # loaded machine delays the last commands), and all three agree on where it is.
+    assert wait_for(lambda: arm.emulator.holding("left"), timeout=30.0)
     np.testing.assert_allclose(twin.q, arm.emulator.positions("left"), atol=1e-12)
     # (the driver's stream may be a sample behind on a loaded machine)
     wait_for(lambda: np.allclose(arm.joint_state().position, twin.q, atol=1e-9), timeout=30.0)
@@ -116,7 +131,7 @@ def test_the_twin_follows_the_emulated_joints_only_during_a_motion(emulated) -> 
     assert abs(twin.q[2] - (READY[2] + 0.2)) < 1e-3
     # Between motions the twin is not touched (the hand grasps in that world then).
     n = twin.executed
-    time.sleep(0.1)
+    ticks_later(arm.emulator, 10)
     assert twin.executed == n
 
 
@@ -129,7 +144,7 @@ def test_a_contact_in_the_twin_ends_the_motion_as_unreachable_and_holds(emulated
     held = arm.emulator.positions("left")
     assert held[2] <= WALL_E0 and held[2] > WALL_E0 - 0.05
     np.testing.assert_allclose(held, twin.q, atol=1e-12)
-    time.sleep(0.3)
+    ticks_later(arm.emulator, 30)
     np.testing.assert_allclose(arm.emulator.positions("left"), held, atol=1e-12)  # holding
     # The stop that ended it is not latched: the arm moves again.
     back = arm.joint_state().position
@@ -140,10 +155,17 @@ def test_a_contact_in_the_twin_ends_the_motion_as_unreachable_and_holds(emulated
 def test_a_stop_from_outside_stays_a_latched_stop(emulated) -> None:
     arm, twin = emulated
     q0 = arm.joint_state().position
-    timer = threading.Timer(0.3, arm.stop)
-    timer.start()
+    n = len(arm.emulator.commands("left"))
+
+    def stop_when_under_way() -> None:  # 20 commands in; no machine ends the 30 s ramp first
+        if wait_for(lambda: len(arm.emulator.commands("left")) >= n + 20, timeout=30.0):
+            arm.stop()
+
+    stopper = threading.Thread(target=stop_when_under_way, daemon=True)
+    stopper.start()
     with pytest.raises(StoppedError):
-        arm.execute(ramp(q0, 2, 0.25, 1.5))
+        arm.execute(ramp(q0, 2, 0.25, 30.0))
+    stopper.join(30.0)
     with pytest.raises(StoppedError):
         arm.execute(ramp(arm.joint_state().position, 2, -0.05, 0.5))
     arm.clear_stop()
