@@ -6,7 +6,9 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import zenoh
@@ -23,39 +25,70 @@ log = logging.getLogger("activetouch.daemon")
 EXPIRY_SWEEP_S = 0.5  # how often the control thread drops queued requests past their timeout
 
 
+class BudgetTimer(Protocol):
+    def start(self) -> None: ...
+    def cancel(self) -> None: ...
+
+
+def daemon_timer(interval: float, fn: Callable[[], None]) -> BudgetTimer:
+    """A `threading.Timer` on a daemon thread (a plan's budget must not keep the process up)."""
+    timer = threading.Timer(interval, fn)
+    timer.daemon = True
+    return timer
+
+
 class TimedPolicy(Policy):
     """A policy that keeps the planning time since it was last asked (per-move figures), ends
     a plan that runs past `budget_s` with the best path it has, and can be interrupted for
-    good (cancel, e-stop, shutdown) from another thread."""
+    good (cancel, e-stop, shutdown) from another thread.
 
-    def __init__(self, inner: Policy, budget_s: float | None = None) -> None:
+    `timer(interval, fn)` starts the budget's countdown and `clock` measures the planning time;
+    tests inject both (the budget expires when they say, not when a loaded machine gets to it)."""
+
+    def __init__(
+        self,
+        inner: Policy,
+        budget_s: float | None = None,
+        *,
+        timer: Callable[[float, Callable[[], None]], BudgetTimer] = daemon_timer,
+        clock: Callable[[], float] = time.perf_counter,
+    ) -> None:
         self.inner = inner
         self.name = inner.name
         self.budget_s = budget_s
+        self._timer, self._clock = timer, clock
         self._pending = 0.0
         self._ended = False  # interrupted for good: no plan runs any more
         self._lock = threading.Lock()
+        self._plans = 0  # plans started; the running one's number while it runs, else None
+        self._running: int | None = None
 
     def plan(self, state: PlanningState, rng: np.random.Generator) -> Plan:
-        t = time.perf_counter()
+        t = self._clock()
+        with self._lock:
+            self._plans += 1
+            self._running = mine = self._plans
         timer = None
         if self.budget_s:
-            timer = threading.Timer(self.budget_s, self._over_budget)
-            timer.daemon = True
+            timer = self._timer(self.budget_s, lambda: self._over_budget(mine))
             timer.start()
         try:
             return self.inner.plan(state, rng)
         finally:
             if timer is not None:
-                timer.cancel()
+                timer.cancel()  # does not stop a callback already under way: see _over_budget
             with self._lock:
+                self._running = None
                 if not self._ended:
                     self.inner.clear_interrupt()  # the budget applies to one plan
-            self._pending += time.perf_counter() - t
+            self._pending += self._clock() - t
 
-    def _over_budget(self) -> None:
-        log.info("plan over its time budget: taking its best path so far")
-        self.inner.interrupt()
+    def _over_budget(self, plan: int) -> None:
+        with self._lock:
+            if self._running != plan:
+                return  # that plan ended as its budget ran out: the next one keeps its own
+            log.info("plan over its time budget: taking its best path so far")
+            self.inner.interrupt()
 
     def interrupt(self) -> None:
         with self._lock:

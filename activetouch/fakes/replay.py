@@ -173,6 +173,7 @@ class FakeHand(Hand):
         self._preshape = 0.0
         self._closed = False
         self.closes = 0
+        self.closing = threading.Event()  # set once a guarded close is under way (for tests)
 
     def connect(self) -> None:
         pass
@@ -192,6 +193,7 @@ class FakeHand(Hand):
 
     def guarded_close(self) -> Grasp:
         self.stop_latch.check("guarded close")
+        self.closing.set()
         if self.cfg.close_s > 0 and self.stop_latch.wait(self.cfg.close_s):
             self.stop_latch.check("guarded close")
         self.closes += 1
