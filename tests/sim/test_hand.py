@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import time
 
 import numpy as np
 import pytest
@@ -361,8 +360,10 @@ def test_stop_ends_a_running_guarded_close_within_one_step(rig) -> None:
     def counting_set_hand(preshape, proximal, distal):
         steps.append(np.asarray(proximal).copy())
         if len(steps) == 3:  # mid-close: the operator hits stop
-            threading.Thread(target=hand.stop).start()
-            time.sleep(0.05)  # the stop lands before the next step
+            stopper = threading.Thread(target=hand.stop)
+            stopper.start()
+            stopper.join(30.0)  # the stop lands before the next step (30 s: a hang bound)
+            assert not stopper.is_alive()
         real_set_hand(preshape, proximal, distal)
 
     w.set_hand = counting_set_hand

@@ -32,7 +32,10 @@ def send(host, arb: int, hexdata: str) -> None:
     host.send(can.Message(arbitration_id=arb, data=bytes.fromhex(hexdata), is_extended_id=False))
 
 
-def replies(host, want: int, timeout: float = 5.0) -> list[can.Message]:
+HANG_S = 30.0  # a hang bound: waits end as soon as what they wait for arrives
+
+
+def replies(host, want: int, timeout: float = HANG_S) -> list[can.Message]:
     out, deadline = [], time.monotonic() + timeout
     while len(out) < want and time.monotonic() < deadline:
         m = host.recv(timeout=0.05)
@@ -41,7 +44,27 @@ def replies(host, want: int, timeout: float = 5.0) -> list[can.Message]:
     return out
 
 
-def wait_for(cond, timeout: float = 10.0) -> bool:
+VERS_F1 = (0x00B, "00")  # GET VERS to F1: answered asleep or awake
+VERS_F1_REPLY = (0x566, bytes.fromhex("8000af000000"))
+
+
+def replies_before_marker(host, timeout: float = HANG_S) -> list[can.Message]:
+    """Every reply to what was sent so far: sends GET VERS to F1 and returns what arrives
+    before its answer. The emulator handles frames one at a time, in order, and answers
+    each at once, so an answer to an earlier frame cannot come after it."""
+    send(host, *VERS_F1)
+    out, deadline = [], time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        m = host.recv(timeout=0.05)
+        if m is None:
+            continue
+        if (m.arbitration_id, bytes(m.data)) == VERS_F1_REPLY:
+            return out
+        out.append(m)
+    raise AssertionError(f"F1 did not answer GET VERS within {timeout} s")
+
+
+def wait_for(cond, timeout: float = HANG_S) -> bool:
     return wait_until(cond, timeout)
 
 
@@ -52,7 +75,7 @@ def test_asleep_answers_vers_then_wakes(rig):
     # Reply from 11 to group 6: 0x400 | 11 << 5 | 6 = 0x566; 0x80 | 0, 0, 175 = 0xaf LE.
     assert m.arbitration_id == 0x566 and bytes(m.data) == bytes.fromhex("8000af000000")
     send(host, 0x00B, "08")  # GET MODE while asleep: not answered
-    assert replies(host, 1, timeout=0.3) == []
+    assert replies_before_marker(host) == []
     send(host, 0x405, "850002000000")  # SET STAT = 2 to the hand group
     send(host, 0x405, "08")  # GET MODE from all four
     got = replies(host, 4)
@@ -108,8 +131,8 @@ def test_faults_silent_and_stuck(rig):
     emu, host = rig
     send(host, 0x405, "850002000000")
     emu.faults.silent.append(13)
-    send(host, 0x405, "08")
-    got = replies(host, 4, timeout=0.5)
+    send(host, 0x405, "08")  # GET MODE from all four: F3 (13) keeps quiet
+    got = replies_before_marker(host)
     assert sorted(m.arbitration_id for m in got) == [0x566, 0x586, 0x5C6]
     emu.faults.stuck_cells.append((11, 0))
     send(host, 0x00B, "ea0002000000")

@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import time
+import types
 
 import numpy as np
 
@@ -39,11 +41,17 @@ def test_driver_state_keeps_its_wall_stamp_and_stale_flag():
     assert np.array_equal(back.pressures, s.pressures) and back.preshape == 0.4
 
 
-def test_a_state_without_wall_stamp_gets_its_instant_on_the_wall_clock():
-    s = _state()
+def test_a_state_without_wall_stamp_gets_its_instant_on_the_wall_clock(monkeypatch):
+    # The process's clocks, frozen: the state was stamped 2.5 s (monotonic) before now, so it
+    # is placed 2.5 s before the wall clock's now.
+    from activetouch.transport import messages
+
+    clocks = types.SimpleNamespace(time=lambda: 1_700_000_010.0, monotonic=lambda: 102.5)
+    monkeypatch.setattr(messages, "time", clocks)
+    s = dataclasses.replace(_state(), stamp=100.0)
     msg = hand_state_to_msg(s)
     assert msg.stale is False
-    assert abs(msg.wall_stamp - time.time()) < 0.5
+    assert msg.wall_stamp == 1_700_000_007.5
 
 
 def test_messages_without_the_new_fields_still_decode():
