@@ -125,11 +125,6 @@ class RecognitionConfig:
     # stood, as the paper's fixed objects; 0.003 for free-standing ones (hard library, nudged
     # up to 1 cm per grasp: +7 points; the object fixed: -0.6, not significant; docs/benchmark.md).
     pose_drift_m: float = 0.0
-    # The share of each class's placement belief that may have slid (by `pose_drift_m`) since
-    # the last grasp: 1, all of it (a Gaussian predict step); below 1, the object either stood
-    # still or was pushed (a mixture: a fixed object keeps its sharp peak, a pushed one is
-    # found again). Only with `pose_drift_m` > 0.
-    pose_drift_share: float = 1.0
     # Grasp where the object is believed to stand: each grasp's wrist pose is its training
     # pose placed where the mesh's term of the pose belief says the object stands after the
     # grasps so far (`PoseBelief.placement_peak`), not on the nominal placement, so a
@@ -638,7 +633,6 @@ def profile_settings(
         out["recognition.pose_follow"] = rc.pose_follow
         out["recognition.pose_alternate_share"] = rc.pose_alternate_share
         out["recognition.pose_drift_m"] = rc.pose_drift_m
-        out["recognition.pose_drift_share"] = rc.pose_drift_share
         out["recognition.pose_grasps_weight"] = rc.pose_grasps_weight
         out["recognition.likelihood_floor"] = rc.likelihood_floor
         out["recognition.likelihood_pose_sigma_m"] = rc.likelihood_pose_sigma_m

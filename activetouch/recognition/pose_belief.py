@@ -55,7 +55,6 @@ _MAY_BE_ZERO = (
     "prior_sigma_deg",
     "grasps_weight",
     "drift_m",
-    "drift_share",
     "alternate_share",
 )
 
@@ -77,7 +76,6 @@ class PoseParams:
     prior_sigma_deg: float = _DEFAULTS.pose_prior_sigma_deg
     grasps_weight: float = _DEFAULTS.pose_grasps_weight
     drift_m: float = _DEFAULTS.pose_drift_m
-    drift_share: float = _DEFAULTS.pose_drift_share
     alternate_share: float = _DEFAULTS.pose_alternate_share
 
     def __post_init__(self) -> None:
@@ -88,10 +86,6 @@ class PoseParams:
             if not ok:
                 bound = ">= 0" if f.name in _MAY_BE_ZERO else "> 0"
                 raise ConfigError(f"recognition.pose_{f.name} must be a number {bound}, got {v!r}")
-        if self.drift_share > 1:
-            raise ConfigError(
-                f"recognition.pose_drift_share must be in 0..1, got {self.drift_share!r}"
-            )
 
     @classmethod
     def from_config(cls, rc: RecognitionConfig) -> PoseParams:
@@ -376,14 +370,13 @@ class PoseEstimate:
         return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
 
-def drifted(log_b: np.ndarray, hyps: np.ndarray, sigma_m: float, share: float = 1.0) -> np.ndarray:
+def drifted(log_b: np.ndarray, hyps: np.ndarray, sigma_m: float) -> np.ndarray:
     """(K, H) the belief `log_b` over the grid `hyps` (`pose_grid` order) after the object
-    may have slid on the table by a Gaussian of `sigma_m` in x and y: `share` of each
-    class's probability spread over the neighbouring placements of each yaw (mass the grid
-    cannot hold is lost: the object is off it), the rest left where it was (the object did
-    not move). No placement falls under 1e-300 of its class's best, so later grasps can
-    still bring one back."""
-    if sigma_m <= 0 or share <= 0:
+    may have slid on the table by a Gaussian of `sigma_m` in x and y: each class's
+    probability spread over the neighbouring placements of each yaw (mass the grid cannot
+    hold is lost: the object is off it). No placement falls under 1e-300 of its class's best,
+    so later grasps can still bring one back."""
+    if sigma_m <= 0:
         return log_b
     # deferred: scipy.ndimage is loaded only by a belief that drifts
     from scipy import ndimage
@@ -396,8 +389,6 @@ def drifted(log_b: np.ndarray, hyps: np.ndarray, sigma_m: float, share: float = 
     p = np.exp(log_b - top).reshape(len(log_b), *(len(a) for a in axes))
     s = sigma_m / step
     q = ndimage.gaussian_filter(p, sigma=(0.0, s, s, 0.0), mode="constant", truncate=3.0)
-    if share < 1:
-        q = (1.0 - share) * p + share * q
     return np.log(np.maximum(q.reshape(len(log_b), -1), 1e-300)) + top
 
 
@@ -535,9 +526,8 @@ class PoseBelief:
 
     def update(self, grasp: Grasp, pose: Pose, ignore: np.ndarray | None = None) -> None:
         if self._grasps and self.params.drift_m > 0:  # it may have slid since the last
-            d, share = self.params.drift_m, self.params.drift_share
-            self.log_b = drifted(self.log_b, self.hyps, d, share)
-            self.mesh_log_b = drifted(self.mesh_log_b, self.hyps, d, share)
+            self.log_b = drifted(self.log_b, self.hyps, self.params.drift_m)
+            self.mesh_log_b = drifted(self.mesh_log_b, self.hyps, self.params.drift_m)
         self._grasps += 1
         contacts, free = grasp_points(grasp, pose, self.free_sites)
         mesh = grasp_log_likelihood(self.shapes, self.hyps, contacts, free, self.params, self.lifts)

@@ -331,22 +331,6 @@ def test_a_belief_that_drifts_spreads_each_class_over_the_neighbouring_placement
     np.testing.assert_array_equal(drifted(log_b, hyps, 0.0), log_b)
 
 
-def test_a_belief_that_may_have_drifted_keeps_the_rest_where_it_was():
-    hyps = pose_grid(PoseParams())
-    centre = np.flatnonzero(np.all(hyps == 0.0, axis=1))[0]
-    beside = np.flatnonzero(np.all(np.isclose(hyps, [0.01, 0.0, 0.0]), axis=1))[0]
-    log_b = np.full((1, len(hyps)), -np.inf)
-    log_b[0, centre] = 0.0
-    # A fifth of it slid by one step's Gaussian, the rest stood still.
-    p = np.exp(drifted(log_b, hyps, 0.01, 0.2)[0])
-    assert p.sum() == pytest.approx(1.0, abs=1e-9)
-    assert p[centre] == pytest.approx(0.8 + 0.2 * _gauss(0) ** 2, rel=1e-9)
-    assert p[beside] == pytest.approx(0.2 * _gauss(1) * _gauss(0), rel=1e-9)
-    np.testing.assert_array_equal(drifted(log_b, hyps, 0.01, 0.0), log_b)
-    with pytest.raises(ConfigError, match="pose_drift_share"):
-        PoseParams(drift_share=1.5)
-
-
 def _gauss(k: int) -> float:
     """Weight at k steps of a Gaussian of one step's sigma, cut at 3 steps."""
     w = np.exp(-0.5 * np.arange(-3, 4) ** 2)
