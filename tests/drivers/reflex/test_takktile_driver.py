@@ -7,19 +7,23 @@ import random
 import socket
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
 from activetouch.device_types import config_class, device_config
+from activetouch.drivers.reflex import kinematics
 from activetouch.drivers.reflex.common import StreamLostError
 from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 from activetouch.errors import ConfigError, StoppedError
+from tests.waiting import wait_for
 
 from .conftest import GROUP, MOTOR_ZERO, driver_config, free_udp_port
 from .packets import state_packet
 
 TICK = 4 * 2 * math.pi / 4095
+EMULATOR_OFFSETS = [300.0 + 10 * i for i in range(38)]  # the emulator fixture's baselines
 
 
 class Board:
@@ -63,6 +67,11 @@ def at_rest_positions() -> tuple[int, int, int, int]:
     return tuple(round(z * g / TICK) for z, g in zip(MOTOR_ZERO, gear, strict=True))
 
 
+def targets_bytes(raw) -> bytes:
+    """A set-targets command (0x02, four big-endian u16), built by hand."""
+    return b"\x02" + b"".join(int(v).to_bytes(2, "big") for v in raw)
+
+
 def feed(board: Board, stop: threading.Event, **kw) -> threading.Thread:
     def run() -> None:
         while not stop.is_set():
@@ -93,7 +102,7 @@ def test_independent_packets_and_open_command_bytes(board):
         assert np.flatnonzero(s.contact).tolist() == [4, 30]
         assert np.allclose(s.motor, 0.0, atol=TICK)
         raw = at_rest_positions()
-        hold = b"\x02" + b"".join(int(v).to_bytes(2, "big") for v in raw)
+        hold = targets_bytes(raw)
         # connect (upstream's start): goals where the servos are, VELOCITY, speeds, POSITION.
         assert board.cmd.recv(64) == hold
         assert board.cmd.recv(64) == bytes([1, 1, 1, 1, 1])
@@ -102,9 +111,7 @@ def test_independent_packets_and_open_command_bytes(board):
         assert board.cmd.recv(64) == b"\x02" + b"".join(v.to_bytes(2, "big") for v in speeds)
         assert board.cmd.recv(64) == bytes([1, 2, 2, 2, 2])
         hand.open()  # no mode switch before a command
-        targets = board.cmd.recv(64)
-        expect = b"\x02" + b"".join(int(v).to_bytes(2, "big") for v in raw)
-        assert targets == expect
+        assert board.cmd.recv(64) == targets_bytes(raw)
     finally:
         stop.set()
         hand.disconnect()
@@ -140,69 +147,130 @@ def test_preshape(hand, emulator):
         hand.preshape(2.0)
 
 
-def test_stop_interrupts_close_within_one_step(hand, emulator):
-    emulator.set_object([math.inf] * 3)
-    result: dict = {}
+def recorded_hand(
+    ports: tuple[int, int],
+    monkeypatch: pytest.MonkeyPatch,
+    after_motion: Callable[[int], None] | None = None,
+    **kw,
+) -> tuple[ReflexTakktileHand, list[tuple[bool, bytes]]]:
+    """A driver for the emulator fixture (not yet connected) and the list of every command it
+    sends from connect on, (motion, bytes), each once it has gone out. `after_motion(k)` runs
+    on the sending thread after the k-th motion command."""
+    hand = ReflexTakktileHand(driver_config(*ports, zero_offsets=EMULATOR_OFFSETS, **kw))
+    sent: list[tuple[bool, bytes]] = []
+    send = hand._send
 
-    def close() -> None:
-        try:
+    def recording_send(data: bytes, motion: bool = True) -> None:
+        send(data, motion)
+        sent.append((motion, data))
+        if motion and after_motion is not None:
+            after_motion(sum(m for m, _ in sent))
+
+    monkeypatch.setattr(hand, "_send", recording_send)
+    return hand, sent
+
+
+def test_stop_interrupts_close_within_one_step(ports, emulator, monkeypatch):
+    """stop() while a guarded close waits for its next packet: the close raises without one,
+    the hold is the last command the board gets (`_send` and stop() share a lock, so no target
+    can follow it), and the motors end there."""
+    under_way = threading.Event()
+
+    def stall(k: int) -> None:
+        if k == 3:
+            emulator.faults.stalled = True  # no packet after the close's third step
+            under_way.set()
+
+    # The stream stops mid-close so that only stop() can end the close; a stream timeout as
+    # long as the test's hang bound keeps that from being a stream loss (not under test here).
+    hand, sent = recorded_hand(ports, monkeypatch, stall, stream_timeout_s=30.0)
+    hand.connect()
+    try:
+        n_connect = len(sent)
+        emulator.set_object([math.inf] * 3)
+        result: dict = {}
+
+        def close() -> None:
+            try:
+                hand.guarded_close()
+            except StoppedError as e:
+                result["err"] = e
+
+        t = threading.Thread(target=close)
+        t.start()
+        assert under_way.wait(30.0)
+        hand.stop()
+        t.join(30.0)
+        assert not t.is_alive() and isinstance(result.get("err"), StoppedError)
+        (hold,) = [d for m, d in sent[n_connect:] if not m]  # stop()'s, nothing else
+        # Every command reached the board (one socket to one socket: in order); the hold last.
+        assert wait_for(lambda: len(emulator.raw_commands) >= len(sent), 30.0)
+        assert len(emulator.raw_commands) == len(sent)
+        assert emulator.raw_commands[-1] == hold
+        # The motors go to the hold and stay there: nothing is commanded after it.
+        (kind, raw) = emulator.commands[-1]
+        assert kind == "targets"
+        held = kinematics.motor_angle(np.array(raw), hand.gear, hand.inverted, hand.motor_zero)
+        held = np.maximum(held[:3], 0.0)  # the emulated spools stop at 0
+        assert wait_for(lambda: np.allclose(emulator.joint_state()[0], held, atol=1e-6), 30.0), (
+            emulator.joint_state(),
+            held,
+        )
+        n = len(sent)
+        with pytest.raises(StoppedError):
             hand.guarded_close()
-        except StoppedError:
-            result["stopped_at"] = time.monotonic()
-
-    t = threading.Thread(target=close)
-    t.start()
-    time.sleep(0.3)
-    n_before = len(emulator.commands)
-    t_stop = time.monotonic()
-    hand.stop()
-    t.join(timeout=2.0)
-    assert "stopped_at" in result
-    assert result["stopped_at"] - t_stop < 0.03  # within one control step (25 ms)
-    time.sleep(0.1)
-    after = emulator.commands[n_before:]
-    # The hold is the last thing sent: targets equal to where the motors were.
-    assert after and after[-1][0] == "targets"
-    spool_then, _ = emulator.joint_state()
-    time.sleep(0.2)
-    assert np.allclose(emulator.joint_state()[0], spool_then, atol=1e-6)
-    with pytest.raises(StoppedError):
-        hand.guarded_close()
-    with pytest.raises(StoppedError):
-        hand.preshape(0.5)
-    hand.open()  # releasing is allowed while stopped
-    hand.clear_stop()
-    hand.preshape(0.2)
+        with pytest.raises(StoppedError):
+            hand.preshape(0.5)
+        assert len(sent) == n  # refused before anything was sent
+        emulator.faults.stalled = False
+        hand.open()  # releasing is allowed while stopped
+        hand.clear_stop()
+        hand.preshape(0.2)
+    finally:
+        emulator.faults.stalled = False
+        hand.disconnect()
 
 
-def test_stream_loss_is_an_error_and_stale(hand, emulator):
-    emulator.set_object([math.inf] * 3)
-    result: dict = {}
+def test_stream_loss_is_an_error_and_stale(ports, emulator, monkeypatch):
+    def stall(k: int) -> None:
+        if k == 3:
+            emulator.faults.stalled = True  # the stream stops after the close's third step
 
-    def close() -> None:
-        try:
+    hand, sent = recorded_hand(ports, monkeypatch, stall)
+    hand.connect()
+    try:
+        n_connect = len(sent)
+        emulator.set_object([math.inf] * 3)
+        result: dict = {}
+
+        def close() -> None:
+            try:
+                hand.guarded_close()
+            except StreamLostError as e:
+                result["err"] = e
+
+        t = threading.Thread(target=close)
+        t.start()
+        t.join(timeout=30.0)  # an error, not a hang
+        assert not t.is_alive() and "err" in result
+        # The receive thread marks the loss (the close's own wait may run out first).
+        assert wait_for(lambda: hand.stats().get("stream_lost", 0) >= 1, 30.0)
+        assert hand.state().stale
+        assert hand.stats()["stream_lost"] == 1
+        # It then commands a hold where the motors last were, and the board gets it.
+        last = hand.state().motor
+        hold = targets_bytes(kinematics.motor_raw(last, hand.gear, hand.inverted, hand.motor_zero))
+        assert wait_for(lambda: (False, hold) in sent, 30.0)
+        assert [d for m, d in sent[n_connect:] if not m] == [hold]
+        assert wait_for(lambda: len(emulator.raw_commands) >= len(sent), 30.0)
+        with pytest.raises(StreamLostError):
             hand.guarded_close()
-        except StreamLostError as e:
-            result["err"] = e
-
-    t = threading.Thread(target=close)
-    t.start()
-    time.sleep(0.2)
-    n_before = len(emulator.commands)
-    emulator.faults.stalled = True
-    t.join(timeout=30.0)  # an error, not a hang
-    assert not t.is_alive() and "err" in result
-    time.sleep(0.1)
-    assert hand.state().stale
-    assert hand.stats()["stream_lost"] == 1
-    # The driver commanded a hold when it noticed.
-    assert emulator.commands[n_before:][-1][0] == "targets"
-    with pytest.raises(StreamLostError):
-        hand.guarded_close()
-    emulator.faults.stalled = False  # the stream comes back: so does the hand
-    time.sleep(0.1)
-    assert not hand.state().stale
-    hand.open()
+        emulator.faults.stalled = False  # the stream comes back: so does the hand
+        assert wait_for(lambda: not hand.state().stale, 30.0)
+        hand.open()
+    finally:
+        emulator.faults.stalled = False
+        hand.disconnect()
 
 
 def test_fuzzed_packets_into_live_driver(board):
@@ -215,8 +283,17 @@ def test_fuzzed_packets_into_live_driver(board):
         hand.connect()
         stop.set()
         feeder.join()
-        time.sleep(0.05)
+        # One socket to one socket keeps order: once a later packet is read, every packet the
+        # feeder sent has been counted and the counts stand still.
+        marker = [0] * 38
+        marker[9] = 77
+        board.send(board.packet(pressures_by_id=marker, positions=at_rest_positions()))
+        assert wait_for(lambda: hand.state().pressures[9] == 77, 30.0)
         before = hand.stats()
+
+        def received() -> int:
+            return hand.stats()["received"] - before["received"]
+
         rng = random.Random(1)
         good = board.packet(positions=at_rest_positions())
         n = 0
@@ -236,15 +313,11 @@ def test_fuzzed_packets_into_live_driver(board):
                 d = bytes(b)
             board.send(d)
             n += 1
-            if i % 200 == 199:  # let the driver keep up (loopback drops on a full buffer)
-                deadline = time.monotonic() + 2.0
-                while hand.stats()["received"] - before["received"] < n and (
-                    time.monotonic() < deadline
-                ):
-                    time.sleep(0.002)
-        deadline = time.monotonic() + 3.0
-        while hand.stats()["received"] - before["received"] < n and time.monotonic() < deadline:
-            time.sleep(0.01)
+            if i % 100 == 99:
+                # At most 100 datagrams in flight: well within the socket's receive buffer
+                # (loopback drops on a full one), however slowly the driver reads.
+                assert wait_for(lambda k=n: received() >= k, 30.0), (received(), n)
+        assert wait_for(lambda: received() >= n, 30.0), (received(), n)
         after = hand.stats()
         got = after["received"] - before["received"]
         assert got == n
@@ -259,8 +332,7 @@ def test_fuzzed_packets_into_live_driver(board):
         pressures = [0] * 38
         pressures[7] = 55
         board.send(board.packet(pressures_by_id=pressures, positions=at_rest_positions()))
-        time.sleep(0.05)
-        assert hand.state().pressures[7] == 55
+        assert wait_for(lambda: hand.state().pressures[7] == 55, 30.0)
     finally:
         stop.set()
         hand.disconnect()
@@ -282,10 +354,14 @@ def test_faults_five_percent_loss_and_friends(hand, emulator):
 def test_stuck_sensors(hand, emulator):
     emulator.faults.stuck_saturated = [5]
     emulator.faults.stuck_zero = [6]
-    time.sleep(0.1)
-    s = hand.state()
-    assert s.contact[5]  # a saturated sensor reads as contact: calibration must catch it
-    assert s.pressures[6] < -100  # zero raw, minus its offset
+
+    def stuck_read() -> bool:
+        s = hand.state()
+        # A saturated sensor reads as contact (calibration must catch it); a zero one reads
+        # zero raw minus its offset. Noise (std 1 count) never does either.
+        return bool(s.contact[5]) and s.pressures[6] < -100
+
+    assert wait_for(stuck_read, 30.0), hand.state().pressures[[5, 6]]
 
 
 def test_connect_without_stream_times_out():
