@@ -28,7 +28,7 @@ from activetouch.emulators.reflex_sf import (
 )
 from activetouch.errors import ConfigError, StoppedError
 from activetouch.models.reflex import DEFAULT_GEOMETRY, sensor_positions
-from tests.waiting import wait_for
+from tests.waiting import started_catching, wait_for
 
 # Not the 0.2 s default: a busy 2-core machine can hold the pty emulator's thread longer than
 # that, and no test here is about how soon a silent bus counts as lost (only that it does).
@@ -188,16 +188,7 @@ def test_preshape_and_stop(hand, emu, monkeypatch):
             stopped.wait(30.0)
 
     monkeypatch.setattr(hand, "_write_goals", recording_write)
-    result: dict = {}
-
-    def close() -> None:
-        try:
-            hand.guarded_close()
-        except StoppedError as e:
-            result["err"] = e
-
-    t = threading.Thread(target=close)
-    t.start()
+    t, result = started_catching(hand.guarded_close, StoppedError)
     try:
         assert under_way.wait(30.0)
         hand.stop()

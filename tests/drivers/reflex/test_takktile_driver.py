@@ -17,7 +17,7 @@ from activetouch.drivers.reflex import kinematics
 from activetouch.drivers.reflex.common import StreamLostError
 from activetouch.drivers.reflex.takktile import ReflexTakktileConfig, ReflexTakktileHand
 from activetouch.errors import ConfigError, StoppedError
-from tests.waiting import wait_for
+from tests.waiting import started_catching, wait_for
 
 from .conftest import GROUP, MOTOR_ZERO, driver_config, free_udp_port
 from .packets import state_packet
@@ -188,16 +188,7 @@ def test_stop_interrupts_close_within_one_step(ports, emulator, monkeypatch):
     try:
         n_connect = len(sent)
         emulator.set_object([math.inf] * 3)
-        result: dict = {}
-
-        def close() -> None:
-            try:
-                hand.guarded_close()
-            except StoppedError as e:
-                result["err"] = e
-
-        t = threading.Thread(target=close)
-        t.start()
+        t, result = started_catching(hand.guarded_close, StoppedError)
         assert under_way.wait(30.0)
         hand.stop()
         t.join(30.0)
@@ -241,16 +232,7 @@ def test_stream_loss_is_an_error_and_stale(ports, emulator, monkeypatch):
     try:
         n_connect = len(sent)
         emulator.set_object([math.inf] * 3)
-        result: dict = {}
-
-        def close() -> None:
-            try:
-                hand.guarded_close()
-            except StreamLostError as e:
-                result["err"] = e
-
-        t = threading.Thread(target=close)
-        t.start()
+        t, result = started_catching(hand.guarded_close, StreamLostError)
         t.join(timeout=30.0)  # an error, not a hang
         assert not t.is_alive() and "err" in result
         # The receive thread marks the loss (the close's own wait may run out first).
