@@ -17,7 +17,8 @@ planning, the session's `total_s`) and the calibration's (its arm moves' duratio
 hand period per sensor reading it waited for: the touches creep 0.5 mm per reading). The
 calibration is told the true object (`calibrate object --object NAME`): what it buys is an
 upper bound for a recognition of an unknown object. A model for the 7 objects is trained once
-(`grid.step_deg`, default 40) in `--data` unless one is there; the recognition uses the
+(`grid.step_deg`, default 40) in `--data` unless one is there (`--model DIR`: that model
+instead, e.g. the hard library's, with `--objects` among its classes); the recognition uses the
 configured belief (`--set recognition.belief=...`), the faults and errors `--set sim.*`.
 
     .venv/bin/python benchmarks/object_calibration.py --data /tmp/oc-home --seeds 10
@@ -224,6 +225,7 @@ def main() -> None:
     ap.add_argument("--deg", type=float, default=0.0, help="placement error about z, degrees")
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--step-deg", type=float, default=40.0, help="training grid.step_deg")
+    ap.add_argument("--model", type=Path, default=None, help="a trained model to use instead")
     ap.add_argument("--set", dest="overrides", action="append", default=[])
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
     args = ap.parse_args()
@@ -241,8 +243,17 @@ def main() -> None:
     # The model is trained on the nominal twin, as a lab trains before it meets the errors: a
     # twin made from `cfg` would collect every grasp with the placement error and faults.
     nominal_sim = dataclasses.replace(cfg.sim, **{k: 0 for k in SIM_ERROR_SETTINGS})
-    model = trained(args.data, dataclasses.replace(cfg, sim=nominal_sim), list(PAPER_SIM_OBJECTS))
-    print(f"model: {paths.default_model(args.data)} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    if args.model is not None:
+        model = load_model(args.model)
+        unknown = [o for o in objects if o not in model.class_names]
+        if unknown:
+            ap.error(f"--objects {unknown} are not classes of the model at {args.model}")
+    else:
+        model = trained(
+            args.data, dataclasses.replace(cfg, sim=nominal_sim), list(PAPER_SIM_OBJECTS)
+        )
+    where = args.model or paths.default_model(args.data)
+    print(f"model: {where} ({time.perf_counter() - t0:.0f} s)", flush=True)
     lib = ObjectLibrary(paths.objects_dir(args.data))
     rows = []
     for mode in [m for m in args.modes.split(",") if m]:

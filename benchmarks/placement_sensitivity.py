@@ -1,0 +1,172 @@
+"""Which training poses still tell two look-alikes apart when the object stands a little off.
+
+The pose belief weighs each real grasp against the training grasps at the wrist pose each of its
+placement hypotheses implies. The hypotheses are `recognition.pose_step_m` (1 cm) and
+`pose_step_deg` (7.5 deg) apart, so the object stands up to half a step off the nearest one, and
+a training grasp is one sample of what the hand feels there. Where a finger catches a lip at
+the trained placement and misses it 3 mm away, that one sample is a coin toss that the belief
+reads as a verdict.
+
+For each pair of classes `A:B` of a trained model, every training pose both share is grasped
+again `--draws` times in the twin with the object off by a uniform draw within +-`--jitter-m`
+and +-`--jitter-deg` (the wrist moved instead: the same relative pose), and the script counts
+the shared poses where the two classes' grasps are unlike (the grasp likelihood's kernel, its
+sensor and closure widths, below `--threshold`): at the trained placement, and under the draws
+(every grasp of one unlike every grasp of the other), and how many poses give each class the
+same outcome under every draw.
+
+    ACTIVETOUCH_HOME=DIR python benchmarks/placement_sensitivity.py \\
+        h_bottle_lip_neck:h_bottle_long_neck h_bowl_foot:h_bowl_shallow [--draws 2] [--json F]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from activetouch import paths
+from activetouch.config import Config, load_config
+from activetouch.errors import UnreachableError
+from activetouch.interfaces import Grasp, Pose
+from activetouch.objects.library import ObjectLibrary
+from activetouch.recognition.contacts import drop_support_contacts
+from activetouch.recognition.dataset import Dataset
+from activetouch.recognition.grasp_likelihood import (
+    LikelihoodParams,
+    finger_closure,
+    pose_at_offset,
+)
+from activetouch.session.local import load_trained, model_path
+
+
+def similarity(a: Grasp, b: Grasp, params: LikelihoodParams) -> float:
+    """The grasp likelihood's kernel between two grasps: sensors in contact and finger closure."""
+    ham = len(set(np.asarray(a.sensor_ids).tolist()) ^ set(np.asarray(b.sensor_ids).tolist()))
+    d2 = float(np.sum((finger_closure(a) - finger_closure(b)) ** 2))
+    return float(np.exp(-ham / params.sensor_scale - d2 / (2.0 * params.angle_sigma_rad**2)))
+
+
+def draws(n: int, jitter_m: float, jitter_deg: float, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) placements off the trained one: dx, dy (m), yaw (rad), uniform within the bounds."""
+    return np.column_stack(
+        [
+            rng.uniform(-jitter_m, jitter_m, n),
+            rng.uniform(-jitter_m, jitter_m, n),
+            np.deg2rad(rng.uniform(-jitter_deg, jitter_deg, n)),
+        ]
+    )
+
+
+def regrasp(
+    library: ObjectLibrary, name: str, poses: np.ndarray, offsets: np.ndarray, cfg: Config
+) -> list[list[Grasp | None]]:
+    """Per pose, one twin grasp per offset (None where the wrist cannot get there)."""
+    # deferred: loads pybullet
+    from activetouch.sim.twin import open_twin
+
+    out: list[list[Grasp | None]] = []
+    spec = library.get(name)
+    with open_twin(spec, cfg.sim, seed=cfg.sim.seed, workcell=cfg.workcell, hand=cfg.hand) as tw:
+        for i, p in enumerate(poses):
+            row: list[Grasp | None] = []
+            for off in offsets[i]:
+                pose = Pose.from_array(pose_at_offset(p, off))
+                tw.hand.open()
+                try:
+                    tw.wrist.move_to(pose)
+                except UnreachableError:
+                    row.append(None)
+                    continue
+                g = tw.hand.guarded_close()
+                row.append(
+                    drop_support_contacts(g, pose, tw.support_z, cfg.recognition.support_margin_m)
+                )
+                tw.hand.open()
+            out.append(row)
+    return out
+
+
+def pair_counts(
+    a: list[list[Grasp]], b: list[list[Grasp]], params: LikelihoodParams, threshold: float
+) -> dict[str, int]:
+    """Counts over shared poses, each given as [trained grasp, redrawn grasps...] per class."""
+    unlike = lambda x, y: similarity(x, y, params) < threshold  # noqa: E731
+    return {
+        "poses": len(a),
+        "differ_trained": sum(unlike(ga[0], gb[0]) for ga, gb in zip(a, b, strict=True)),
+        "differ_under_draws": sum(
+            all(unlike(x, y) for x in ga for y in gb) for ga, gb in zip(a, b, strict=True)
+        ),
+        "stable_a": sum(all(not unlike(ga[0], x) for x in ga[1:]) for ga in a),
+        "stable_b": sum(all(not unlike(gb[0], x) for x in gb[1:]) for gb in b),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("pairs", nargs="+", help="class pairs A:B")
+    ap.add_argument("--draws", type=int, default=2)
+    ap.add_argument("--jitter-m", type=float, default=0.005)
+    ap.add_argument("--jitter-deg", type=float, default=3.75)
+    ap.add_argument("--threshold", type=float, default=0.3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--max-poses", type=int, default=0, help="the first N shared poses (0: all)")
+    ap.add_argument("--model")
+    ap.add_argument("--data")
+    ap.add_argument("--json")
+    args = ap.parse_args(argv)
+    root = paths.data_dir(args.data)
+    cfg = load_config(None, [])
+    model_dir = model_path(root, args.model, cfg.hand.family)
+    model = load_trained(model_dir)
+    params = LikelihoodParams.from_config(cfg.recognition)
+    dataset = Dataset.open(str(model.meta["dataset"]))
+    library = ObjectLibrary(paths.objects_dir(root))
+    rows: list[dict[str, Any]] = []
+    for pair in args.pairs:
+        names = pair.split(":")
+        bad = [n for n in names if n not in model.class_names]
+        if len(names) != 2 or bad:
+            ap.error(f"{pair!r}: give two of the model's classes as A:B (unknown: {bad})")
+        trained = [dataset.read(n) for n in names]
+        shared = sorted(set(trained[0].pose_ids.tolist()) & set(trained[1].pose_ids.tolist()))
+        if args.max_poses > 0:
+            shared = shared[: args.max_poses]
+        rng = np.random.default_rng(args.seed)
+        offsets = draws(len(shared) * args.draws, args.jitter_m, args.jitter_deg, rng)
+        offsets = offsets.reshape(len(shared), args.draws, 3)
+        per_class = []
+        for og in trained:
+            at = {pid: i for i, pid in enumerate(og.pose_ids.tolist())}
+            idx = [at[pid] for pid in shared]
+            again = regrasp(library, og.name, og.poses[idx], offsets, cfg)
+            per_class.append([[og.grasps[i], *g] for i, g in zip(idx, again, strict=True)])
+        # Only poses every redraw reached, for both classes.
+        keep = [
+            k
+            for k in range(len(shared))
+            if all(g is not None for g in per_class[0][k] + per_class[1][k])
+        ]
+        a = [per_class[0][k] for k in keep]
+        b = [per_class[1][k] for k in keep]
+        row = {"a": names[0], "b": names[1], **pair_counts(a, b, params, args.threshold)}
+        rows.append(row)
+        print(
+            f"{names[0]} vs {names[1]}: {row['poses']} shared poses; unlike at the trained "
+            f"placement {row['differ_trained']}, under every draw {row['differ_under_draws']}; "
+            f"the same outcome under every draw: {row['stable_a']} / {row['stable_b']}",
+            flush=True,
+        )
+    if args.json:
+        doc = {"argv": sys.argv[1:], "rows": rows}
+        Path(args.json).write_text(json.dumps(doc, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
