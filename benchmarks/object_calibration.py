@@ -43,7 +43,7 @@ from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.planning.motion.floating import FloatingWristMotion
 from activetouch.planning.policies import make_policy
-from activetouch.session.loop import RecognitionSession
+from activetouch.session.loop import RecognitionSession, belief_table_of
 from activetouch.sim.twin import open_twin, placement_error
 from activetouch.sim.world import geometry_from_config
 
@@ -103,8 +103,14 @@ def run_one(
     if mode == "nominal":
         sim = type(sim)(**{**vars(sim), "placement_error_m": 0.0, "placement_error_deg": 0.0})
     err = placement_error(sim, seed)
+    # The planner plans on the configured belief, as `recognize` does (before, it planned on
+    # the histogram whatever the belief).
     policy = make_policy(
-        cfg.planner.policy, cfg.planner, model.observation, model.classifier.kernel()
+        cfg.planner.policy,
+        cfg.planner,
+        model.observation,
+        model.classifier.kernel(),
+        belief_table_of(model, cfg.recognition),
     )
     row: dict = {
         "object": name,
