@@ -31,7 +31,7 @@ import numpy as np
 
 from activetouch import paths
 from activetouch.config import Config, load_config
-from activetouch.errors import UnreachableError
+from activetouch.errors import ActiveTouchError, UnreachableError
 from activetouch.interfaces import Grasp, Pose
 from activetouch.objects.library import ObjectLibrary
 from activetouch.recognition.contacts import drop_support_contacts
@@ -169,4 +169,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    try:
+        raise SystemExit(main())
+    except ActiveTouchError as e:  # a missing model, dataset or object: said, not traced
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
