@@ -39,6 +39,7 @@ from activetouch.recognition.dataset import Dataset
 from activetouch.recognition.grasp_likelihood import (
     LikelihoodParams,
     finger_closure,
+    grasp_kernel,
     pose_at_offset,
 )
 from activetouch.session.local import load_trained, model_path
@@ -48,7 +49,7 @@ def similarity(a: Grasp, b: Grasp, params: LikelihoodParams) -> float:
     """The grasp likelihood's kernel between two grasps: sensors in contact and finger closure."""
     ham = len(set(np.asarray(a.sensor_ids).tolist()) ^ set(np.asarray(b.sensor_ids).tolist()))
     d2 = float(np.sum((finger_closure(a) - finger_closure(b)) ** 2))
-    return float(np.exp(-ham / params.sensor_scale - d2 / (2.0 * params.angle_sigma_rad**2)))
+    return float(grasp_kernel(np.float64(ham), np.float64(d2), params))
 
 
 def draws(n: int, jitter_m: float, jitter_deg: float, rng: np.random.Generator) -> np.ndarray:

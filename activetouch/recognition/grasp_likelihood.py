@@ -94,6 +94,12 @@ def finger_closure(grasp: Grasp) -> np.ndarray:
     return out
 
 
+def grasp_kernel(ham: np.ndarray, d2: np.ndarray, params: LikelihoodParams) -> np.ndarray:
+    """k between grasps from their sensor bits' Hamming distance `ham` and the squared
+    difference `d2` of their fingers' closure (summed over the fingers)."""
+    return np.exp(-ham / params.sensor_scale - d2 / (2.0 * params.angle_sigma_rad**2))
+
+
 def pose_weights(poses: np.ndarray, x: np.ndarray, sigma_m: float, sigma_rad: float) -> np.ndarray:
     """Gaussian weights (n,) of training poses (n, 7) around wrist pose `x` (7,): translation
     distance and rotation angle (q and -q alike)."""
@@ -412,7 +418,7 @@ class GraspLikelihood:
             diff = diff & keep
         ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
         dth = np.sum((self.closure[rows][None, :, :] - closure[:, None, :]) ** 2, axis=2)
-        return np.exp(-ham / params.sensor_scale - dth / (2.0 * params.angle_sigma_rad**2))
+        return grasp_kernel(ham, dth, params)
 
     def _class_log_average(
         self, w: np.ndarray, k: np.ndarray, rows: np.ndarray, floor: float
