@@ -86,8 +86,7 @@ def run(
     from activetouch.devices import make_devices
     from activetouch.errors import UnreachableError
     from activetouch.model import load_model
-    from activetouch.planning.policies import make_policy
-    from activetouch.session.loop import RecognitionSession
+    from activetouch.session.loop import RecognitionSession, policy_for
 
     cfg = load_config(BAXTER_TOML, [*VARIANTS[variant], *overrides])
     model = load_model(paths.default_model(Path(root)))
@@ -116,9 +115,7 @@ def run(
             devices.ctx.place(obj, seed)
             placement = devices.placement()
             wrist.set_placement(placement)
-            policy_obj = make_policy(
-                policy, cfg.planner, model.observation, model.classifier.kernel()
-            )
+            policy_obj = policy_for(model, policy, cfg.planner, cfg.recognition)
             robot0, cmds0 = wrist.robot_seconds, len(emu.commands(cfg.arm.side)) if emu else 0
             session = RecognitionSession(
                 devices.hand,

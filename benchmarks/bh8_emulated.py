@@ -20,22 +20,15 @@ from activetouch import paths
 from activetouch.config import load_config
 from activetouch.model import load_model
 from activetouch.objects.library import ObjectLibrary
-from activetouch.planning.policies import make_policy
 from activetouch.session.local import placed_devices, recognize_in_twin
-from activetouch.session.loop import RecognitionSession, belief_table_of
+from activetouch.session.loop import RecognitionSession, policy_for
 
 
 def through_driver(model, library, obj: str, policy: str, seed: int, max_moves: int):
     cfg = load_config(
         None, ["hand.type=barrett-bh8", "hand.emulate=twin", f"session.max_moves={max_moves}"]
     )
-    pol = make_policy(
-        policy,
-        cfg.planner,
-        model.observation,
-        model.classifier.kernel(),
-        belief_table_of(model, cfg.recognition),
-    )
+    pol = policy_for(model, policy, cfg.planner, cfg.recognition)
     with placed_devices(cfg, library.root.parent, obj, seed, "recognize") as (devices, placement):
         res = RecognitionSession(
             devices.hand,

@@ -42,8 +42,7 @@ from activetouch.config import SIM_ERROR_SETTINGS, Config, load_config
 from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import PAPER_SIM_OBJECTS, ObjectLibrary
 from activetouch.planning.motion.floating import FloatingWristMotion
-from activetouch.planning.policies import make_policy
-from activetouch.session.loop import RecognitionSession, belief_table_of
+from activetouch.session.loop import RecognitionSession, policy_for
 from activetouch.sim.twin import open_twin, placement_error
 from activetouch.sim.world import geometry_from_config
 
@@ -105,13 +104,7 @@ def run_one(
     err = placement_error(sim, seed)
     # The planner plans on the configured belief, as `recognize` does (before, it planned on
     # the histogram whatever the belief).
-    policy = make_policy(
-        cfg.planner.policy,
-        cfg.planner,
-        model.observation,
-        model.classifier.kernel(),
-        belief_table_of(model, cfg.recognition),
-    )
+    policy = policy_for(model, cfg.planner.policy, cfg.planner, cfg.recognition)
     row: dict = {
         "object": name,
         "seed": seed,

@@ -115,8 +115,7 @@ def run_driver(
     from activetouch.devices import make_devices
     from activetouch.drivers.reflex.common import StreamLostError
     from activetouch.model import load_model
-    from activetouch.planning.policies import make_policy
-    from activetouch.session.loop import RecognitionSession
+    from activetouch.session.loop import RecognitionSession, policy_for
     from activetouch.sim.devices import twin_rig
 
     cfg = load_config(
@@ -136,9 +135,7 @@ def run_driver(
         for seed in seeds:
             devices.ctx.place(obj, seed)
             devices.wrist.set_placement(devices.placement())
-            policy_obj = make_policy(
-                policy, cfg.planner, model.observation, model.classifier.kernel()
-            )
+            policy_obj = policy_for(model, policy, cfg.planner, cfg.recognition)
             before = devices.hand.stats()
             session = RecognitionSession(
                 devices.hand,

@@ -65,7 +65,7 @@ from activetouch.recordings.format import placement_pose
 from activetouch.recordings.writer import close_recorder, open_recorder
 from activetouch.session.local import load_trained
 from activetouch.session.loop import Progress as SessionProgress
-from activetouch.session.loop import RecognitionSession, belief_table_of
+from activetouch.session.loop import RecognitionSession, belief_table_of, policy_for
 from activetouch.transport.keys import ARM_NODE, DAEMON_NODE, HAND_NODE, SIM_NODE, Keys
 from activetouch.transport.messages import (
     MAX_PAYLOAD,
@@ -694,13 +694,7 @@ class RecognitionService:
             simulations=req.simulations or cfg.planner.simulations,
         )
         policy = TimedPolicy(
-            make_policy(
-                req.policy,
-                planner_cfg,
-                model.observation,
-                self._kernel,
-                belief_table_of(model, cfg.recognition),
-            ),
+            policy_for(model, req.policy, planner_cfg, cfg.recognition),
             self.svc.max_plan_s,
         )
         running.policy = policy

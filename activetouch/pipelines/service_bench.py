@@ -41,9 +41,9 @@ from activetouch.config import load_config
 from activetouch.errors import ConfigError
 from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.evaluation import parse_seeds
-from activetouch.planning.policies import POLICY_NAMES, make_policy
+from activetouch.planning.policies import POLICY_NAMES
 from activetouch.session.local import load_trained, model_path, recognize_in_twin
-from activetouch.session.loop import RecognitionSession, belief_table_of
+from activetouch.session.loop import RecognitionSession, policy_for
 from activetouch.transport.messages import RecognizeRequest
 
 TARGET_OVERHEAD_PCT = 5.0
@@ -89,7 +89,6 @@ def main(argv: list[str] | None = None) -> int:
     root = paths.data_dir(args.data)
     mdir = model_path(root, args.model, cfg.hand.family)
     model = load_trained(mdir)  # "no model ... train one first" before anything starts
-    kernel = model.classifier.kernel()
     library = ObjectLibrary(paths.objects_dir(root))
     objects = args.objects.split(",") if args.objects else list(model.class_names)
     for name in objects:
@@ -122,13 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         first: list[float] = []
         t0 = time.perf_counter()
         twin.place(spec, seed)
-        policy = make_policy(
-            args.policy,
-            cfg.planner,
-            model.observation,
-            kernel,
-            belief_table_of(model, cfg.recognition),
-        )
+        policy = policy_for(model, args.policy, cfg.planner, cfg.recognition)
         session_cfg = dataclasses.replace(cfg.session, max_moves=max_moves)
         res = RecognitionSession(
             twin.hand,

@@ -19,13 +19,13 @@ from activetouch.devices import make_devices
 from activetouch.errors import ConfigError, DataError
 from activetouch.model import TrainedModel, load_model
 from activetouch.objects.library import ObjectLibrary
-from activetouch.planning.policies import POLICY_NAMES, Policy, make_policy
+from activetouch.planning.policies import POLICY_NAMES, Policy
 from activetouch.recordings.format import placement_pose
 from activetouch.session.loop import (
     Progress,
     RecognitionResult,
     RecognitionSession,
-    belief_table_of,
+    policy_for,
 )
 
 if TYPE_CHECKING:
@@ -93,13 +93,7 @@ def recognize_in_twin(
         session_cfg = type(cfg.session)(**{**vars(cfg.session), "max_moves": int(max_moves)})
     check_request(policy_name, session_cfg.max_moves, seed)
     spec = library.get(object_name)
-    policy = make_policy(
-        policy_name,
-        cfg.planner,
-        model.observation,
-        model.classifier.kernel(),
-        belief_table_of(model, cfg.recognition),
-    )
+    policy = policy_for(model, policy_name, cfg.planner, cfg.recognition)
     rng = np.random.default_rng(seed)
     if cfg.arm.type != FLOATING_ARM:
         return _recognize_on_devices(

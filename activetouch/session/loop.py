@@ -39,7 +39,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from activetouch.calibration.tactile import read_states
-from activetouch.config import RecognitionConfig, SessionConfig
+from activetouch.config import PlannerConfig, RecognitionConfig, SessionConfig
 from activetouch.device_types import DEFAULT_HAND, FAMILY_SENSORS, config_class
 from activetouch.errors import (
     ActiveTouchError,
@@ -53,7 +53,7 @@ from activetouch.objects.library import ObjectLibrary
 from activetouch.planning.mesh_lookahead import PlacementBelief
 from activetouch.planning.motion.base import WristMotion
 from activetouch.planning.observation_model import travel_edge_cost
-from activetouch.planning.policies import Plan, PlanningState, Policy
+from activetouch.planning.policies import Plan, PlanningState, Policy, make_policy
 from activetouch.planning.simulated_belief import BeliefTable
 from activetouch.recognition.contacts import drop_support_contacts, hand_to_object
 from activetouch.recognition.grasp_likelihood import (
@@ -781,3 +781,21 @@ def belief_table_of(
     if rc.belief == "pose":  # plan as if the object may stand anywhere near the belief
         offsets = placement_offsets(rc.plan_placement_m, rc.plan_placement_deg)
     return BeliefTable(model_l.training_log_likelihoods(params, offsets), out_grasp)
+
+
+def policy_for(
+    model: TrainedModel,
+    name: str,
+    planner: PlannerConfig,
+    recognition: RecognitionConfig | None,
+) -> Policy:
+    """The policy `name` as a recognition uses it: planning on the belief `recognition`
+    configures (`belief_table_of`), so no caller can forget the belief and plan on the
+    histogram instead."""
+    return make_policy(
+        name,
+        planner,
+        model.observation,
+        model.classifier.kernel(),
+        belief_table_of(model, recognition),
+    )
