@@ -44,6 +44,10 @@ ARM_TYPES: dict[str, str] = {
 }
 # Sensors of each hand family (ids 0 .. n-1): the ReFlex's 38, the BarrettHand's 96 cells.
 FAMILY_SENSORS: dict[str, int] = {"reflex": 38, "bh8": 96}
+# Each finger's own sensors, ids f*n .. f*n + n - 1 for fingers f = 0, 1, 2 (the palm's after):
+# the ReFlex's 9 per finger (5 proximal, 4 distal), the BarrettHand's 24 fingertip-pad cells.
+# A finger's guarded close stops on one of these (both hands).
+FAMILY_FINGER_SENSORS: dict[str, int] = {"reflex": 9, "bh8": 24}
 DEFAULT_HAND = "twin"
 DEFAULT_ARM = "twin-floating"
 

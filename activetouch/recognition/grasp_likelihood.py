@@ -18,6 +18,14 @@ and theta the three fingers' closing angles (how far a
 finger closed says how wide the object is where it touched). p(g | y, x) = sum w k / sum w,
 plus a floor so one odd grasp cannot rule a class out. A class with no training grasp near x
 gets the mean likelihood of those that have one (it has no say there).
+
+Sensors masked in a recognition (dead, stuck, in contact at rest) are left out of the Hamming
+distance on both sides. They also move where a finger stops: the guarded close stops a finger
+on the first reading in which one of its own sensors feels the object, so a finger whose
+training grasp stopped on a sensor masked now (it is not heard) closes on past that angle.
+For such a finger and training grasp only closing less than the training grasp counts against
+the class (`finger_censor`): 4 dead sensors cost the lip-necked bottle a quarter of its runs
+against the long-necked one with the placement known (docs/benchmark.md).
 """
 
 from __future__ import annotations
@@ -92,6 +100,34 @@ def finger_closure(grasp: Grasp) -> np.ndarray:
     a = np.asarray(grasp.finger_angles, dtype=np.float64).reshape(-1)[:3]
     out[: len(a)] = a
     return out
+
+
+def finger_censor(ignore: np.ndarray | None, finger_sensors: int, words: int) -> np.ndarray | None:
+    """(3, `words`) each finger's masked sensors (`ignore`) as mask words, finger f's own
+    sensors being ids f * `finger_sensors` ... + `finger_sensors` - 1; None when no finger
+    has one masked or the hand's layout is not given (`finger_sensors` 0)."""
+    if ignore is None or finger_sensors <= 0:
+        return None
+    ids = np.asarray(ignore, dtype=np.int64).reshape(-1)
+    ids = ids[ids < min(3 * finger_sensors, 64 * words)]
+    if not ids.size:
+        return None
+    out = np.zeros((3, words), dtype=np.uint64)
+    for f in range(3):
+        own = ids[ids // finger_sensors == f]
+        if own.size:
+            out[f] = sensor_mask(own, words)
+    return out
+
+
+def closure_gaps(trained: np.ndarray, felt: np.ndarray, censored: np.ndarray | None) -> np.ndarray:
+    """(n, R) the squared closure differences summed over the fingers between n grasps
+    `felt` (n, 3) and R training grasps `trained` (R, 3); where `censored` (R, 3) a finger
+    closing further than its training grasp costs nothing (its stop was not heard)."""
+    d = trained[None, :, :] - felt[:, None, :]
+    if censored is not None:
+        d = np.where(censored[None], np.maximum(d, 0.0), d)
+    return np.sum(d**2, axis=2)
 
 
 def grasp_kernel(ham: np.ndarray, d2: np.ndarray, params: LikelihoodParams) -> np.ndarray:
@@ -251,14 +287,24 @@ class GraspLikelihood:
         )
 
     def log_likelihood(
-        self, grasp: Grasp, pose: Pose, params: LikelihoodParams, ignore: np.ndarray | None = None
+        self,
+        grasp: Grasp,
+        pose: Pose,
+        params: LikelihoodParams,
+        ignore: np.ndarray | None = None,
+        finger_sensors: int = 0,
     ) -> np.ndarray:
         """log p(grasp | y, pose) for every class y (K,). `ignore`: sensor ids left out of
-        the comparison on both sides (masked this recognition: what they say is not known)."""
+        the comparison on both sides (masked this recognition: what they say is not known);
+        `finger_sensors`: the hand's sensors per finger (`FAMILY_FINGER_SENSORS`), so a
+        finger whose training stop was on a masked sensor may close past it (0: not known)."""
         x = np.concatenate([np.asarray(pose.xyz, float), np.asarray(pose.quat, float)])
         mask = self._mask(grasp.sensor_ids)[None]
         keep = ~self._mask(ignore) if ignore is not None and len(ignore) else None
-        return self._log_likelihood_many(mask, finger_closure(grasp)[None], x, params, keep)[0]
+        censor = finger_censor(ignore, finger_sensors, self.words)
+        return self._log_likelihood_many(
+            mask, finger_closure(grasp)[None], x, params, keep, censor
+        )[0]
 
     @property
     def words(self) -> int:
@@ -276,6 +322,7 @@ class GraspLikelihood:
         poses: np.ndarray,
         params: LikelihoodParams,
         ignore: np.ndarray | None = None,
+        finger_sensors: int = 0,
     ) -> np.ndarray:
         """(P, K) log p(grasp | y, x) of one grasp as if made at each of `poses` (P, 7), the
         same as `log_likelihood` at each; the training grasps further from all of them than
@@ -295,7 +342,12 @@ class GraspLikelihood:
         w = cut_pose_weights_at(self.poses[cand], x, s_m, s_r, _WEIGHT_CUTOFF)  # (P, cand)
         keep = ~self._mask(ignore) if ignore is not None and len(ignore) else None
         k = self._similarity(
-            cand, self._mask(grasp.sensor_ids)[None], finger_closure(grasp)[None], params, keep
+            cand,
+            self._mask(grasp.sensor_ids)[None],
+            finger_closure(grasp)[None],
+            params,
+            keep,
+            finger_censor(ignore, finger_sensors, self.words),
         )
         return self._class_log_average(w, k, cand, params.floor)
 
@@ -394,12 +446,13 @@ class GraspLikelihood:
         x: np.ndarray,
         params: LikelihoodParams,
         keep: np.ndarray | None = None,
+        censor: np.ndarray | None = None,
     ) -> np.ndarray:
         """(n, K) log-likelihoods of n grasps (masks (n, W), closure (n, 3)) all made at `x`;
-        `keep`: the sensor bits compared (all if None)."""
+        `keep`: the sensor bits compared (all if None); `censor`: `finger_censor`'s words."""
         w = pose_weights(self.poses, x, params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg))
         near = np.flatnonzero(w > _WEIGHT_CUTOFF)
-        k = self._similarity(near, masks, closure, params, keep)
+        k = self._similarity(near, masks, closure, params, keep, censor)
         return self._class_log_average(w[near][None], k, near, params.floor)
 
     def _similarity(
@@ -409,16 +462,20 @@ class GraspLikelihood:
         closure: np.ndarray,
         params: LikelihoodParams,
         keep: np.ndarray | None,
+        censor: np.ndarray | None = None,
     ) -> np.ndarray:
         """(n, R) kernel k between n grasps (masks (n, W), closure (n, 3)) and the training
         grasps `rows`: Hamming distance of the sensor bits (`keep`: those compared) and the
-        fingers' closure."""
-        diff = self.masks[rows][None, :, :] ^ masks[:, None, :]
+        fingers' closure (`censor` (3, W): each finger's masked sensors, `finger_censor`)."""
+        trained = self.masks[rows]
+        diff = trained[None, :, :] ^ masks[:, None, :]
         if keep is not None:
             diff = diff & keep
         ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
-        dth = np.sum((self.closure[rows][None, :, :] - closure[:, None, :]) ** 2, axis=2)
-        return grasp_kernel(ham, dth, params)
+        censored = None
+        if censor is not None:  # (R, 3): the training grasp's finger touched a masked sensor
+            censored = np.any(trained[:, None, :] & censor[None], axis=-1)
+        return grasp_kernel(ham, closure_gaps(self.closure[rows], closure, censored), params)
 
     def _class_log_average(
         self, w: np.ndarray, k: np.ndarray, rows: np.ndarray, floor: float

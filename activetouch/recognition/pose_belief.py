@@ -287,19 +287,22 @@ def in_object_frames(points: np.ndarray, hyps: np.ndarray) -> np.ndarray:
     return np.einsum("hji,hmj->hmi", r, points[None, :, :] - t)  # R^T (p - t)
 
 
-# Where a grasp shows the object is not: hand-frame points from the grasp (its hand's model).
-FreeSites = Callable[[Grasp], np.ndarray]
+# Where a grasp shows the object is not: hand-frame points from the grasp (its hand's model)
+# and the sensors whose silence says nothing (masked this recognition).
+FreeSites = Callable[[Grasp, np.ndarray], np.ndarray]
 
 
 def reflex_free_sites(geom: ReflexGeometry | None = None) -> FreeSites:
     g = geom or ReflexGeometry()
-    return lambda grasp: reflex.grasp_free_sites(
-        g, grasp.preshape, finger_closure(grasp), grasp.sensor_ids
+    return lambda grasp, masked: reflex.grasp_free_sites(
+        g, grasp.preshape, finger_closure(grasp), np.union1d(grasp.sensor_ids, masked)
     )
 
 
-def bh8_free_sites(grasp: Grasp) -> np.ndarray:
-    return bh8.grasp_free_sites(grasp.preshape, finger_closure(grasp), grasp.sensor_ids)
+def bh8_free_sites(grasp: Grasp, masked: np.ndarray) -> np.ndarray:
+    return bh8.grasp_free_sites(
+        grasp.preshape, finger_closure(grasp), np.union1d(grasp.sensor_ids, masked)
+    )
 
 
 def free_sites_for(family: str) -> FreeSites:
@@ -307,12 +310,16 @@ def free_sites_for(family: str) -> FreeSites:
     return bh8_free_sites if family == "bh8" else reflex_free_sites()
 
 
-def grasp_points(grasp: Grasp, pose: Pose, free_sites: FreeSites) -> tuple[np.ndarray, np.ndarray]:
+def grasp_points(
+    grasp: Grasp, pose: Pose, free_sites: FreeSites, ignore: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(contacts (C, 3), free (F, 3)) in the nominal object frame: the contacts the grasp
     reported, and the points its hand's model says the grasp found free (sensor sites left
-    without contact, and those the fingers swept through on their way)."""
+    without contact, and those the fingers swept through on their way). A masked sensor
+    (`ignore`) is silent whether or not it touches: its site says nothing."""
     contacts = hand_to_object(pose, np.asarray(grasp.xyz, dtype=np.float64).reshape(-1, 3))
-    return contacts, hand_to_object(pose, free_sites(grasp))
+    masked = np.zeros(0, dtype=np.int64) if ignore is None else np.asarray(ignore, np.int64)
+    return contacts, hand_to_object(pose, free_sites(grasp, masked))
 
 
 def grasp_log_likelihood(
@@ -514,6 +521,7 @@ class PoseBelief:
     free_sites: FreeSites
     grasps: tuple[GraspLikelihood, LikelihoodParams] | None = None
     support_z: float | None = None  # the table in the nominal frame: classes stand on it
+    finger_sensors: int = 0  # the hand's sensors per finger (`GraspLikelihood.log_likelihood`)
 
     def __post_init__(self) -> None:
         self.hyps = pose_grid(self.params)
@@ -529,7 +537,7 @@ class PoseBelief:
             self.log_b = drifted(self.log_b, self.hyps, self.params.drift_m)
             self.mesh_log_b = drifted(self.mesh_log_b, self.hyps, self.params.drift_m)
         self._grasps += 1
-        contacts, free = grasp_points(grasp, pose, self.free_sites)
+        contacts, free = grasp_points(grasp, pose, self.free_sites, ignore)
         mesh = grasp_log_likelihood(self.shapes, self.hyps, contacts, free, self.params, self.lifts)
         self.mesh_log_b = self.mesh_log_b + mesh
         total = self.log_b + mesh
@@ -538,7 +546,9 @@ class PoseBelief:
             best = total.max(axis=0)
             live = np.flatnonzero(best >= best.max() - PRUNE_NATS)
             x = wrist_under_hypotheses(pose, self.hyps[live])
-            train = model_l.log_likelihood_at_poses(grasp, x, lp, ignore)  # (L, K)
+            train = model_l.log_likelihood_at_poses(
+                grasp, x, lp, ignore, self.finger_sensors
+            )  # (L, K)
             term = np.full(total.shape, float(train.min()))
             term[:, live] = train.T
             total = total + self.params.grasps_weight * term

@@ -40,7 +40,12 @@ import numpy as np
 
 from activetouch.calibration.tactile import read_states
 from activetouch.config import PlannerConfig, RecognitionConfig, SessionConfig
-from activetouch.device_types import DEFAULT_HAND, FAMILY_SENSORS, config_class
+from activetouch.device_types import (
+    DEFAULT_HAND,
+    FAMILY_FINGER_SENSORS,
+    FAMILY_SENSORS,
+    config_class,
+)
 from activetouch.errors import (
     ActiveTouchError,
     ConfigError,
@@ -237,6 +242,7 @@ class BeliefTracker:
         decides p(y | ...) instead of the grasp likelihood (the planner still plans with
         the grasp likelihood's table, on this belief's class marginal)."""
         self.model, self.likelihood, self.pose = model, likelihood, pose
+        self._finger_sensors = FAMILY_FINGER_SENSORS.get(model_hand_family(model), 0)
         self.counts = np.zeros(model.spec.n_bins)
         self._log_b = np.zeros(len(model.class_names))  # summed log p(grasp | y, pose)
 
@@ -266,7 +272,9 @@ class BeliefTracker:
             felt = bool(self.counts.any())
         else:
             model_l, params = self.likelihood
-            self._log_b = self._log_b + model_l.log_likelihood(grasp, pose, params, ignore)
+            self._log_b = self._log_b + model_l.log_likelihood(
+                grasp, pose, params, ignore, self._finger_sensors
+            )
             p = softmax_belief(self._log_b)
             felt = bool(np.ptp(p) > 1e-12)  # even an empty grasp may tell classes apart
         return p, felt, cells
@@ -744,11 +752,13 @@ def pose_belief_of(
     assert library is not None
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
-    free = free_sites_for(model_hand_family(model))
+    family = model_hand_family(model)
+    free = free_sites_for(family)
     grasps = grasp_likelihood_of(model, rc) if rc.pose_with_grasps else None
     on_table = rc.pose_on_table
+    per_finger = FAMILY_FINGER_SENSORS.get(family, 0)
     return lambda support_z: PoseBelief(
-        shapes, params, free, grasps, support_z if on_table else None
+        shapes, params, free, grasps, support_z if on_table else None, per_finger
     )
 
 

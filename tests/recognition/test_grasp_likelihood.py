@@ -13,6 +13,7 @@ from activetouch.recognition.dataset import load_npz_bytes, npz_bytes
 from activetouch.recognition.grasp_likelihood import (
     GraspLikelihood,
     LikelihoodParams,
+    finger_censor,
     pose_weights,
     sensor_mask,
     softmax_belief,
@@ -292,3 +293,43 @@ def test_a_pose_placed_on_an_offset_object_is_undone_by_the_offset():
         back = poses_under_offsets(pose_at_offset(pose, off), off[None])[0]
         np.testing.assert_allclose(back[:3], pose[:3], atol=1e-12)
         assert abs(abs(back[3:] @ pose[3:]) - 1.0) < 1e-12  # the same rotation
+
+
+def test_finger_censor_takes_each_fingers_own_masked_sensors() -> None:
+    # ReFlex: 9 per finger (0-8, 9-17, 18-26), the palm's 27-37 stop no finger.
+    w = finger_censor(np.array([3, 14, 17, 30]), 9, 1)
+    assert w.tolist() == [[2**3], [2**14 + 2**17], [0]]
+    assert finger_censor(np.array([30, 35]), 9, 1) is None  # palm only
+    assert finger_censor(np.array([3]), 0, 1) is None  # layout not known
+    assert finger_censor(None, 9, 1) is None
+    # BarrettHand: 24 fingertip cells per finger, the palm's 72-95.
+    w = finger_censor(np.array([23, 24, 71, 80]), 24, 2)
+    assert w[:, 0].tolist() == [2**23, 2**24, 0]
+    assert w[:, 1].tolist() == [0, 0, 2**7]
+
+
+def test_a_finger_whose_training_stop_is_masked_may_close_past_it() -> None:
+    # Class 0's finger 2 (sensors 9-17) stopped at 1.0 rad on sensor 14 (a lip); class 1's
+    # closed on to 2.0 with nothing felt. Sensor 14 is dead now: the guarded close does not hear
+    # it, so the finger closes on to 2.0 over the lip too, and that must not read as class 1.
+    at = np.stack([pose_at(0.0)])
+    lik = GraspLikelihood.fit(
+        [(at, [grasp([14], (1.0, 1.0, 1.0))]), (at, [grasp([], (1.0, 2.0, 1.0))])]
+    )
+    p = LikelihoodParams(angle_sigma_rad=0.1, floor=1e-9)
+    here = Pose(pose_at(0.0)[:3], IDENTITY)
+    felt = grasp([], (1.0, 2.0, 1.0))
+    dead = np.array([14])
+    blind = lik.log_likelihood(felt, here, p, dead)  # the layout not given: as before
+    assert blind[0] == pytest.approx(np.log(np.exp(-(1.0**2) / (2 * 0.1**2)) + 1e-9))
+    assert blind[1] == pytest.approx(np.log(1.0 + 1e-9))
+    heard = lik.log_likelihood(felt, here, p, dead, finger_sensors=9)
+    assert heard[0] == pytest.approx(heard[1], abs=1e-9)  # no say either way
+    # Closing less than the training grasp still counts against it, as does another finger.
+    short = lik.log_likelihood(grasp([], (1.0, 0.7, 1.0)), here, p, dead, finger_sensors=9)
+    assert short[0] == pytest.approx(np.log(np.exp(-(0.3**2) / (2 * 0.1**2)) + 1e-9))
+    other = lik.log_likelihood(grasp([], (1.5, 2.0, 1.0)), here, p, dead, finger_sensors=9)
+    assert other[0] == pytest.approx(np.log(np.exp(-(0.5**2) / (2 * 0.1**2)) + 1e-9))
+    # The same through the many-pose path the pose belief uses.
+    many = lik.log_likelihood_at_poses(felt, at, p, dead, finger_sensors=9)
+    np.testing.assert_allclose(many[0], heard, rtol=1e-12)

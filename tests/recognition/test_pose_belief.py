@@ -18,6 +18,7 @@ from activetouch.recognition.pose_belief import (
     ClassShape,
     PoseBelief,
     PoseParams,
+    bh8_free_sites,
     class_lifts,
     drifted,
     grasp_log_likelihood,
@@ -257,7 +258,7 @@ class _FavourClass:
     def __init__(self, k: int, n_classes: int, nats: float) -> None:
         self.k, self.n, self.nats = k, n_classes, nats
 
-    def log_likelihood_at_poses(self, grasp, poses, params, ignore=None):
+    def log_likelihood_at_poses(self, grasp, poses, params, ignore=None, finger_sensors=0):
         out = np.zeros((len(poses), self.n))
         out[:, self.k] = self.nats
         return out
@@ -348,3 +349,18 @@ def test_a_rival_placement_is_one_apart_from_the_best_with_enough_support():
     # Yaw wraps: 2 pi - 0.01 rad is 0.01 rad from 0, the same placement.
     wrapped = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2 * np.pi - 0.01]])
     assert rival_placement(wrapped, np.array([1.0, 1.0]), scale, 0, 0.5) is None
+
+
+@pytest.mark.parametrize(
+    "sites, masked",
+    [(reflex_free_sites(), [4, 14, 30]), (bh8_free_sites, [80, 90])],
+)
+def test_a_masked_sensors_silence_shows_no_free_space(sites, masked) -> None:
+    # (The BarrettHand's final fingertip cells are never free points: only its palm's.)
+    # A dead sensor pressed into the object reads nothing: its site is not known to be free.
+    g = Grasp(np.array([2]), np.zeros((1, 3)), np.array([30.0]), np.array([1.0, 1.2, 0.8]))
+    every = sites(g, np.zeros(0, dtype=np.int64))
+    fewer = sites(g, np.array(masked))
+    assert len(fewer) == len(every) - len(masked)
+    kept = {tuple(np.round(p, 9)) for p in fewer}
+    assert kept <= {tuple(np.round(p, 9)) for p in every}
