@@ -12,7 +12,8 @@ runs three ways:
               the same displaced object, so its noise streams match the other rows)
   recognised  the object unknown: a displaced recognition first, then `calibrate_object`
               against the class it named (the likeliest), then a recognition again in the
-              measured frame; its robot seconds count both recognitions and the calibration
+              measured frame (x, y and yaw measured; its height the session's, as in every
+              mode); its robot seconds count both recognitions and the calibration
   told        the session is told the true placement (no touch): the ceiling of any
               localisation
 
@@ -168,6 +169,11 @@ def run_one(
             row["calibration_robot_s"] = clock.seconds
             if fit is not None:
                 place = fit.placement
+                if mode == "recognised":
+                    # The frame's height stays the session's (the workcell's): the named
+                    # class's height would move every grasp by half the height difference.
+                    z = nominal_placement(cfg.workcell, spec.extents).xyz[2]
+                    place = dataclasses.replace(place, xyz=np.array([*place.xyz[:2], z]))
                 row.update(
                     est_dx_mm=float(place.xyz[0] - nominal.xyz[0]) * 1e3,
                     est_dy_mm=float(place.xyz[1] - nominal.xyz[1]) * 1e3,

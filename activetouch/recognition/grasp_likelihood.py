@@ -22,10 +22,10 @@ gets the mean likelihood of those that have one (it has no say there).
 Sensors masked in a recognition (dead, stuck, in contact at rest) are left out of the Hamming
 distance on both sides. They also move where a finger stops: the guarded close stops a finger
 on the first reading in which one of its own sensors feels the object, so a finger whose
-training grasp stopped on a sensor masked now (it is not heard) closes on past that angle.
-For such a finger and training grasp only closing less than the training grasp counts against
-the class (`finger_censor`): 4 dead sensors cost the lip-necked bottle a quarter of its runs
-against the long-necked one with the placement known (docs/benchmark.md).
+training grasp felt the object only on sensors masked now (they are not heard) closes on past
+that angle. For such a finger and training grasp only closing less than the training grasp
+counts against the class (`censored_fingers`): with the placement known, 4 dead sensors cost
+the lip-necked bottle a quarter of its runs against the long-necked one (docs/benchmark.md).
 """
 
 from __future__ import annotations
@@ -103,21 +103,34 @@ def finger_closure(grasp: Grasp) -> np.ndarray:
 
 
 def finger_censor(ignore: np.ndarray | None, finger_sensors: int, words: int) -> np.ndarray | None:
-    """(3, `words`) each finger's masked sensors (`ignore`) as mask words, finger f's own
-    sensors being ids f * `finger_sensors` ... + `finger_sensors` - 1; None when no finger
-    has one masked or the hand's layout is not given (`finger_sensors` 0)."""
+    """(2, 3, `words`) mask words of each finger's masked sensors (`ignore`; [0]) and of its
+    other sensors ([1]), finger f's own sensors being ids f * `finger_sensors` ... +
+    `finger_sensors` - 1 (the palm's after them stop no finger); None when no finger has one
+    masked or the hand's layout is not given (`finger_sensors` 0)."""
     if ignore is None or finger_sensors <= 0:
         return None
     ids = np.asarray(ignore, dtype=np.int64).reshape(-1)
     ids = ids[ids < min(3 * finger_sensors, 64 * words)]
     if not ids.size:
         return None
-    out = np.zeros((3, words), dtype=np.uint64)
+    out = np.zeros((2, 3, words), dtype=np.uint64)
     for f in range(3):
-        own = ids[ids // finger_sensors == f]
-        if own.size:
-            out[f] = sensor_mask(own, words)
+        own = np.arange(f * finger_sensors, (f + 1) * finger_sensors)
+        own = own[own < 64 * words]
+        masked = np.intersect1d(own, ids)
+        out[0, f] = sensor_mask(masked, words)
+        out[1, f] = sensor_mask(np.setdiff1d(own, masked), words)
     return out
+
+
+def censored_fingers(trained: np.ndarray, censor: np.ndarray) -> np.ndarray:
+    """(R, 3) for R training grasps' sensor words `trained` (R, W): whether each finger felt
+    the object only on sensors masked now (`finger_censor`'s words). Such a finger stopped
+    on a sensor the guarded close no longer hears, and closes on past that angle; one that
+    also felt an unmasked sensor stops about where it did (that sensor is pressed within the
+    step after the first), so it is compared as usual."""
+    t = trained[:, None, :]
+    return np.any(t & censor[0][None], axis=-1) & ~np.any(t & censor[1][None], axis=-1)
 
 
 def closure_gaps(trained: np.ndarray, felt: np.ndarray, censored: np.ndarray | None) -> np.ndarray:
@@ -466,15 +479,13 @@ class GraspLikelihood:
     ) -> np.ndarray:
         """(n, R) kernel k between n grasps (masks (n, W), closure (n, 3)) and the training
         grasps `rows`: Hamming distance of the sensor bits (`keep`: those compared) and the
-        fingers' closure (`censor` (3, W): each finger's masked sensors, `finger_censor`)."""
+        fingers' closure (`censor`: `finger_censor`'s words, or None)."""
         trained = self.masks[rows]
         diff = trained[None, :, :] ^ masks[:, None, :]
         if keep is not None:
             diff = diff & keep
         ham = np.bitwise_count(diff).sum(axis=-1).astype(float)
-        censored = None
-        if censor is not None:  # (R, 3): the training grasp's finger touched a masked sensor
-            censored = np.any(trained[:, None, :] & censor[None], axis=-1)
+        censored = None if censor is None else censored_fingers(trained, censor)
         return grasp_kernel(ham, closure_gaps(self.closure[rows], closure, censored), params)
 
     def _class_log_average(

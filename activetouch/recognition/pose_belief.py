@@ -287,22 +287,22 @@ def in_object_frames(points: np.ndarray, hyps: np.ndarray) -> np.ndarray:
     return np.einsum("hji,hmj->hmi", r, points[None, :, :] - t)  # R^T (p - t)
 
 
-# Where a grasp shows the object is not: hand-frame points from the grasp (its hand's model)
-# and the sensors whose silence says nothing (masked this recognition).
-FreeSites = Callable[[Grasp, np.ndarray], np.ndarray]
+# Where a grasp shows the object is not: hand-frame points from the grasp (its hand's model).
+# A masked sensor's site stays among them: leaving it out (its silence says nothing) cost
+# 0.14 [0.03, 0.27] grasps on the tuning seeds (docs/benchmark.md), as such a site is free
+# far more often than it is pressed into the object unheard.
+FreeSites = Callable[[Grasp], np.ndarray]
 
 
 def reflex_free_sites(geom: ReflexGeometry | None = None) -> FreeSites:
     g = geom or ReflexGeometry()
-    return lambda grasp, masked: reflex.grasp_free_sites(
-        g, grasp.preshape, finger_closure(grasp), np.union1d(grasp.sensor_ids, masked)
+    return lambda grasp: reflex.grasp_free_sites(
+        g, grasp.preshape, finger_closure(grasp), grasp.sensor_ids
     )
 
 
-def bh8_free_sites(grasp: Grasp, masked: np.ndarray) -> np.ndarray:
-    return bh8.grasp_free_sites(
-        grasp.preshape, finger_closure(grasp), np.union1d(grasp.sensor_ids, masked)
-    )
+def bh8_free_sites(grasp: Grasp) -> np.ndarray:
+    return bh8.grasp_free_sites(grasp.preshape, finger_closure(grasp), grasp.sensor_ids)
 
 
 def free_sites_for(family: str) -> FreeSites:
@@ -310,16 +310,12 @@ def free_sites_for(family: str) -> FreeSites:
     return bh8_free_sites if family == "bh8" else reflex_free_sites()
 
 
-def grasp_points(
-    grasp: Grasp, pose: Pose, free_sites: FreeSites, ignore: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def grasp_points(grasp: Grasp, pose: Pose, free_sites: FreeSites) -> tuple[np.ndarray, np.ndarray]:
     """(contacts (C, 3), free (F, 3)) in the nominal object frame: the contacts the grasp
     reported, and the points its hand's model says the grasp found free (sensor sites left
-    without contact, and those the fingers swept through on their way). A masked sensor
-    (`ignore`) is silent whether or not it touches: its site says nothing."""
+    without contact, and those the fingers swept through on their way)."""
     contacts = hand_to_object(pose, np.asarray(grasp.xyz, dtype=np.float64).reshape(-1, 3))
-    masked = np.zeros(0, dtype=np.int64) if ignore is None else np.asarray(ignore, np.int64)
-    return contacts, hand_to_object(pose, free_sites(grasp, masked))
+    return contacts, hand_to_object(pose, free_sites(grasp))
 
 
 def grasp_log_likelihood(
@@ -537,7 +533,7 @@ class PoseBelief:
             self.log_b = drifted(self.log_b, self.hyps, self.params.drift_m)
             self.mesh_log_b = drifted(self.mesh_log_b, self.hyps, self.params.drift_m)
         self._grasps += 1
-        contacts, free = grasp_points(grasp, pose, self.free_sites, ignore)
+        contacts, free = grasp_points(grasp, pose, self.free_sites)
         mesh = grasp_log_likelihood(self.shapes, self.hyps, contacts, free, self.params, self.lifts)
         self.mesh_log_b = self.mesh_log_b + mesh
         total = self.log_b + mesh

@@ -298,14 +298,15 @@ def test_a_pose_placed_on_an_offset_object_is_undone_by_the_offset():
 def test_finger_censor_takes_each_fingers_own_masked_sensors() -> None:
     # ReFlex: 9 per finger (0-8, 9-17, 18-26), the palm's 27-37 stop no finger.
     w = finger_censor(np.array([3, 14, 17, 30]), 9, 1)
-    assert w.tolist() == [[2**3], [2**14 + 2**17], [0]]
+    assert w[0].tolist() == [[2**3], [2**14 + 2**17], [0]]
+    assert w[1].tolist() == [[2**9 - 1 - 2**3], [(2**18 - 2**9) - 2**14 - 2**17], [2**27 - 2**18]]
     assert finger_censor(np.array([30, 35]), 9, 1) is None  # palm only
     assert finger_censor(np.array([3]), 0, 1) is None  # layout not known
     assert finger_censor(None, 9, 1) is None
     # BarrettHand: 24 fingertip cells per finger, the palm's 72-95.
     w = finger_censor(np.array([23, 24, 71, 80]), 24, 2)
-    assert w[:, 0].tolist() == [2**23, 2**24, 0]
-    assert w[:, 1].tolist() == [0, 0, 2**7]
+    assert w[0, :, 0].tolist() == [2**23, 2**24, 0]
+    assert w[0, :, 1].tolist() == [0, 0, 2**7]
 
 
 def test_a_finger_whose_training_stop_is_masked_may_close_past_it() -> None:
@@ -333,3 +334,10 @@ def test_a_finger_whose_training_stop_is_masked_may_close_past_it() -> None:
     # The same through the many-pose path the pose belief uses.
     many = lik.log_likelihood_at_poses(felt, at, p, dead, finger_sensors=9)
     np.testing.assert_allclose(many[0], heard, rtol=1e-12)
+    # A training finger that also felt an unmasked sensor (15) stopped about where it would
+    # now: compared as usual.
+    both = GraspLikelihood.fit(
+        [(at, [grasp([14, 15], (1.0, 1.0, 1.0))]), (at, [grasp([], (1.0, 2.0, 1.0))])]
+    )
+    usual = both.log_likelihood(felt, here, p, dead, finger_sensors=9)
+    assert usual[0] == pytest.approx(np.log(np.exp(-1 - 1.0**2 / (2 * 0.1**2)) + 1e-9))

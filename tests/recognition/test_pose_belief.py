@@ -18,7 +18,6 @@ from activetouch.recognition.pose_belief import (
     ClassShape,
     PoseBelief,
     PoseParams,
-    bh8_free_sites,
     class_lifts,
     drifted,
     grasp_log_likelihood,
@@ -349,18 +348,3 @@ def test_a_rival_placement_is_one_apart_from_the_best_with_enough_support():
     # Yaw wraps: 2 pi - 0.01 rad is 0.01 rad from 0, the same placement.
     wrapped = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2 * np.pi - 0.01]])
     assert rival_placement(wrapped, np.array([1.0, 1.0]), scale, 0, 0.5) is None
-
-
-@pytest.mark.parametrize(
-    "sites, masked",
-    [(reflex_free_sites(), [4, 14, 30]), (bh8_free_sites, [80, 90])],
-)
-def test_a_masked_sensors_silence_shows_no_free_space(sites, masked) -> None:
-    # (The BarrettHand's final fingertip cells are never free points: only its palm's.)
-    # A dead sensor pressed into the object reads nothing: its site is not known to be free.
-    g = Grasp(np.array([2]), np.zeros((1, 3)), np.array([30.0]), np.array([1.0, 1.2, 0.8]))
-    every = sites(g, np.zeros(0, dtype=np.int64))
-    fewer = sites(g, np.array(masked))
-    assert len(fewer) == len(every) - len(masked)
-    kept = {tuple(np.round(p, 9)) for p in fewer}
-    assert kept <= {tuple(np.round(p, 9)) for p in every}
