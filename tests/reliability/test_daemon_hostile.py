@@ -162,7 +162,7 @@ class HeldPlanner:
         self.release = threading.Event()
         self.plans = self.interrupts = 0
         self.held_out = False
-        real = recognition_service.make_policy
+        real = recognition_service.policy_for
         held = self
 
         class Held(Policy):
@@ -188,12 +188,12 @@ class HeldPlanner:
                 if held.ends_on_interrupt:
                     held.release.clear()
 
-        def make(name, cfg, model, kernel, belief=None):
+        def make(model, name, planner, recognition):
             # The real policy at the request's bounds (validated as ever), held.
-            quick = real("random", cfg, model, kernel, belief)
-            return Held(real(name, cfg, model, kernel, belief), quick)
+            quick = real(model, "random", planner, recognition)
+            return Held(real(model, name, planner, recognition), quick)
 
-        monkeypatch.setattr(recognition_service, "make_policy", make)
+        monkeypatch.setattr(recognition_service, "policy_for", make)
 
 
 def test_estop_is_answered_and_in_force_without_waiting_for_the_largest_plan(
