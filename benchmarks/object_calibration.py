@@ -121,10 +121,9 @@ def run_one(
     }
     with open_twin(spec, sim, seed=seed, workcell=cfg.workcell) as twin:
         wrist, support_z = twin.wrist, twin.support_z
-        first_robot_s = 0.0
-        calib_spec = spec
-        if mode == "recognised":
-            first = RecognitionSession(
+
+        def session_on(wrist, support_z: float) -> RecognitionSession:
+            return RecognitionSession(
                 twin.hand,
                 wrist,
                 model,
@@ -134,7 +133,12 @@ def run_one(
                 support_z=support_z,
                 recognition=cfg.recognition,
                 library=lib,
-            ).run()
+            )
+
+        first_robot_s = 0.0
+        calib_spec = spec
+        if mode == "recognised":
+            first = session_on(wrist, support_z).run()
             row.update(first_label=first.label, first_grasps=first.moves)
             first_robot_s = first.total_s
             calib_spec = lib.get(first.label)
@@ -191,19 +195,8 @@ def run_one(
                 wrist = FloatingWristMotion(twin.arm, place)
                 support_z = place.support_z(cfg.workcell.table_top_z)
             twin.place(spec, seed)  # fresh noise streams, the same displaced object
-        session = RecognitionSession(
-            twin.hand,
-            wrist,
-            model,
-            policy,
-            cfg.session,
-            np.random.default_rng(seed),
-            support_z=support_z,
-            recognition=cfg.recognition,
-            library=lib,
-        )
         t0 = time.perf_counter()
-        res = session.run()
+        res = session_on(wrist, support_z).run()
         row.update(
             label=res.label,
             correct=res.label == name,
