@@ -119,6 +119,8 @@ def run_one(
         "true_dy_mm": err.dy * 1e3,
         "true_yaw_deg": float(np.degrees(err.yaw_rad)),
     }
+    # The session's object frame: where the twin stands `spec` (its height from spec's).
+    frame = nominal_placement(cfg.workcell, spec.extents)
     with open_twin(spec, sim, seed=seed, workcell=cfg.workcell) as twin:
         wrist, support_z = twin.wrist, twin.support_z
 
@@ -144,11 +146,10 @@ def run_one(
             calib_spec = lib.get(first.label)
             twin.place(spec, seed)
         if mode == "told":
-            nominal = nominal_placement(cfg.workcell, spec.extents)
             place = dataclasses.replace(
-                nominal,
-                xyz=nominal.xyz + np.array([err.dx, err.dy, 0.0]),
-                yaw_rad=nominal.yaw_rad + err.yaw_rad,
+                frame,
+                xyz=frame.xyz + np.array([err.dx, err.dy, 0.0]),
+                yaw_rad=frame.yaw_rad + err.yaw_rad,
             )
             wrist = FloatingWristMotion(twin.arm, place)
             support_z = place.support_z(cfg.workcell.table_top_z)
@@ -176,8 +177,8 @@ def run_one(
                 if mode == "recognised":
                     # The frame's height stays the session's (the workcell's): the named
                     # class's height would move every grasp by half the height difference.
-                    z = nominal_placement(cfg.workcell, spec.extents).xyz[2]
-                    place = dataclasses.replace(place, xyz=np.array([*place.xyz[:2], z]))
+                    xyz = np.array([*place.xyz[:2], frame.xyz[2]])
+                    place = dataclasses.replace(place, xyz=xyz)
                 row.update(
                     est_dx_mm=float(place.xyz[0] - nominal.xyz[0]) * 1e3,
                     est_dy_mm=float(place.xyz[1] - nominal.xyz[1]) * 1e3,

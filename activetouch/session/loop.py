@@ -242,7 +242,7 @@ class BeliefTracker:
         decides p(y | ...) instead of the grasp likelihood (the planner still plans with
         the grasp likelihood's table, on this belief's class marginal)."""
         self.model, self.likelihood, self.pose = model, likelihood, pose
-        self._finger_sensors = FAMILY_FINGER_SENSORS.get(model_hand_family(model), 0)
+        self._finger_sensors = finger_sensors_of(model)
         self.counts = np.zeros(model.spec.n_bins)
         self._log_b = np.zeros(len(model.class_names))  # summed log p(grasp | y, pose)
 
@@ -637,6 +637,12 @@ def model_hand_family(model: TrainedModel) -> str:
         return "reflex"
 
 
+def finger_sensors_of(model: TrainedModel) -> int:
+    """The sensors per finger of the hand the model was trained for (`FAMILY_FINGER_SENSORS`;
+    0 for a family whose layout is not known: its fingers are then compared as before)."""
+    return FAMILY_FINGER_SENSORS.get(model_hand_family(model), 0)
+
+
 def check_model_hand(model: TrainedModel, hand: Hand) -> None:
     """ConfigError unless the hand has the sensors the model was trained with."""
     family = model_hand_family(model)
@@ -752,11 +758,10 @@ def pose_belief_of(
     assert library is not None
     shapes = class_shapes(list(model.class_names), library)
     params = PoseParams.from_config(rc)
-    family = model_hand_family(model)
-    free = free_sites_for(family)
+    free = free_sites_for(model_hand_family(model))
     grasps = grasp_likelihood_of(model, rc) if rc.pose_with_grasps else None
     on_table = rc.pose_on_table
-    per_finger = FAMILY_FINGER_SENSORS.get(family, 0)
+    per_finger = finger_sensors_of(model)
     return lambda support_z: PoseBelief(
         shapes, params, free, grasps, support_z if on_table else None, per_finger
     )
