@@ -234,7 +234,7 @@ def predicted_values(
         packed.offsets,
         np.asarray(belief.lifts, dtype=np.float64),
         cls,
-        np.ascontiguousarray(belief.hyps[hidx]),
+        np.ascontiguousarray(belief.frames[cls, hidx]),
         sites,
         belief.params.contact_offset_m,
         support,

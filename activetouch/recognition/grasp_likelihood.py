@@ -336,23 +336,28 @@ class GraspLikelihood:
         params: LikelihoodParams,
         ignore: np.ndarray | None = None,
         finger_sensors: int = 0,
+        class_groups: np.ndarray | None = None,
     ) -> np.ndarray:
         """(P, K) log p(grasp | y, x) of one grasp as if made at each of `poses` (P, 7), the
         same as `log_likelihood` at each; the training grasps further from all of them than
         the weight cutoff are left out first (the poses are close together: one placement's
-        hypotheses)."""
-        x = np.asarray(poses, dtype=np.float64).reshape(-1, 7)
+        hypotheses). With `class_groups` (K,), `poses` is (G, P, 7) and class y is weighed at
+        poses[class_groups[y]] (classes that turn about another point stand elsewhere under
+        the same hypothesis); the sensors are compared once for all."""
+        G = 1 if class_groups is None else int(np.max(class_groups)) + 1
+        x = np.asarray(poses, dtype=np.float64).reshape(G, -1, 7)
+        groups = np.zeros(self.n_classes, dtype=np.int64) if class_groups is None else class_groups
         s_m, s_r = params.pose_sigma_m, np.deg2rad(params.pose_sigma_deg)
         reach = s_m * np.sqrt(2.0 * np.log(1.0 / _WEIGHT_CUTOFF))  # translation alone
-        centre = x[:, :3].mean(axis=0)
-        spread = float(np.max(np.linalg.norm(x[:, :3] - centre, axis=1)))
+        flat = x.reshape(-1, 7)
+        centre = flat[:, :3].mean(axis=0)
+        spread = float(np.max(np.linalg.norm(flat[:, :3] - centre, axis=1)))
         cand = np.flatnonzero(
             np.sum((self.poses[:, :3] - centre) ** 2, axis=1) <= (spread + reach) ** 2
         )
-        P, K = len(x), self.n_classes
+        P, K = x.shape[1], self.n_classes
         if cand.size == 0:
             return np.full((P, K), np.log(1.0 + params.floor))
-        w = cut_pose_weights_at(self.poses[cand], x, s_m, s_r, _WEIGHT_CUTOFF)  # (P, cand)
         keep = ~self._mask(ignore) if ignore is not None and len(ignore) else None
         k = self._similarity(
             cand,
@@ -362,7 +367,14 @@ class GraspLikelihood:
             keep,
             finger_censor(ignore, finger_sensors, self.words),
         )
-        return self._class_log_average(w, k, cand, params.floor)
+        out = np.empty((P, K))
+        for g in range(G):
+            cols = groups == g
+            if G > 1 and not cols.any():
+                continue
+            w = cut_pose_weights_at(self.poses[cand], x[g], s_m, s_r, _WEIGHT_CUTOFF)  # (P, cand)
+            out[:, cols] = self._class_log_average(w, k, cand, params.floor)[:, cols]
+        return out
 
     def training_log_likelihoods(
         self, params: LikelihoodParams, offsets: np.ndarray | None = None

@@ -3,8 +3,9 @@
 The paper assumes the object stands exactly where the workcell says. A lab's object is a few
 centimetres and degrees off, and then every grasp is compared with training grasps made at a
 pose the hand was not at. This belief keeps hypotheses h = (dx, dy, yaw) of where the object
-really stands (on the table: x, y and a turn about the vertical through the object frame's
-origin, the bounding-box centre) and weighs each grasp under each (class y, h) with y's mesh:
+really stands (on the table: x, y and a turn about the vertical through the class's pivot,
+the centroid of its solid, so a mug turns about its body and not about its bounding box's
+centre beside it) and weighs each grasp under each (class y, h) with y's mesh:
 
 - every contact (a sensor site that read contact) should lie on the surface: a Gaussian in
   its distance to the surface, plus a floor so one stray contact cannot rule a class out;
@@ -124,6 +125,7 @@ def log_prior(hyps: np.ndarray, p: PoseParams) -> np.ndarray:
 # free: the floor) well before it, and a bounded k-d tree query is ~30x faster.
 DISTANCE_CAP_M = 0.025
 SDF_VERSION = 2  # of the grid's construction: cached grids of another version are rebuilt
+PIVOT_VERSION = 1  # of `roundest_axis`: a stored pivot of another version is found again
 
 
 @dataclass
@@ -135,6 +137,7 @@ class ClassShape:
     origin: np.ndarray  # (3,) the grid's first corner
     step: float
     values: np.ndarray  # (nx, ny, nz) float32
+    pivot: np.ndarray | None = None  # (2,) `pivot_xy` once found (stored with the grid)
 
     @classmethod
     def from_mesh(
@@ -153,10 +156,18 @@ class ClassShape:
         d = np.minimum(d, DISTANCE_CAP_M)  # inf beyond the bound
         inside = grid_inside(np.asarray(mesh.triangles, dtype=np.float64), grid, d, shape, step)
         sd = np.where(inside, -d, d)
-        return cls(lo, float(step), sd.reshape(shape).astype(np.float32))
+        out = cls(lo, float(step), sd.reshape(shape).astype(np.float32))
+        out.pivot = roundest_axis(out)
+        return out
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        return {"origin": self.origin, "step": np.array([self.step]), "values": self.values}
+        return {
+            "origin": self.origin,
+            "step": np.array([self.step]),
+            "values": self.values,
+            "pivot": self.pivot_xy,
+            "pivot_version": np.array([PIVOT_VERSION]),
+        }
 
     @classmethod
     def from_arrays(cls, d: dict[str, np.ndarray]) -> ClassShape:
@@ -165,17 +176,108 @@ class ClassShape:
         step = float(np.asarray(d["step"]).reshape(-1)[0])
         if values.ndim != 3 or min(values.shape) < 2 or not step > 0:
             raise ValueError("malformed signed-distance grid")
-        return cls(origin, step, values)
+        pivot = None
+        if has_pivot(d):  # else (stored before it, or by another version) found when asked
+            pivot = np.asarray(d["pivot"], dtype=np.float64).reshape(2)
+        return cls(origin, step, values, pivot)
 
     @property
     def bottom_z(self) -> float:
         """The mesh's lowest point (the grid reaches the cap beyond the mesh's bounds)."""
         return float(self.origin[2]) + DISTANCE_CAP_M
 
+    @property
+    def pivot_xy(self) -> np.ndarray:
+        """(2,) where the class turns on the table (object frame, metres): `roundest_axis`.
+        The frame's origin is its bounding box's centre, 17 mm off a handle mug's body:
+        turned about it, the body swings along an arc that meets the placements' 1 cm grid
+        nearer to where the contacts fit best than a plain mug's body, which stands in one
+        place however it is turned, and the handle mugs won a plain mug's runs on that alone
+        (docs/benchmark.md)."""
+        if self.pivot is None:
+            self.pivot = roundest_axis(self)
+        return self.pivot
+
     def signed_distance(self, p: np.ndarray) -> np.ndarray:
         """(M,) at points (M, 3); +cap outside the grid (farther than the cap from it)."""
         u = (np.asarray(p, dtype=np.float64).reshape(-1, 3) - self.origin) / self.step
         return trilinear(self.values, u, DISTANCE_CAP_M)
+
+
+# `roundest_axis`: the turn it tries, the candidates' spacing (coarse, then fine), how many
+# surface points it turns, how near the surface a turned point counts as still on it, and
+# the share of the surface that must stay on it for the class to count as round.
+ROUND_TURN_RAD = np.deg2rad(15.0)
+ROUND_STEPS_M = (0.004, 0.001)
+ROUND_POINTS = 1000
+ROUND_ON_M = 0.002
+ROUND_SHARE = 0.5
+
+
+def solid_centroid(shape: ClassShape) -> np.ndarray:
+    """(2,) x and y of the solid's centroid, each grid node weighted by its depth inside (a
+    node count would lean by the grid's placement, by up to half a step)."""
+    w = np.maximum(-shape.values, 0.0)
+    total = float(w.sum())
+    if total <= 0.0:
+        return np.zeros(2)
+    return np.array(
+        [
+            shape.origin[i]
+            + shape.step
+            * float(w.sum(axis=tuple(j for j in range(3) if j != i)) @ np.arange(w.shape[i]))
+            / total
+            for i in range(2)
+        ]
+    )
+
+
+def kept_on_surface(shape: ClassShape, pts: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(C,) for each vertical axis through `axes` (C, 2), the share of the surface points
+    `pts` (N, 3) within `ROUND_ON_M` of the surface once turned by +-`ROUND_TURN_RAD` about
+    it (the two turns' mean)."""
+    rel = pts[None, :, :2] - axes[:, None, :]  # (C, N, 2)
+    kept = np.zeros(len(axes))
+    for turn in (ROUND_TURN_RAD, -ROUND_TURN_RAD):
+        c, s = np.cos(turn), np.sin(turn)
+        moved = np.empty((*rel.shape[:2], 3))
+        moved[..., 0] = axes[:, None, 0] + c * rel[..., 0] - s * rel[..., 1]
+        moved[..., 1] = axes[:, None, 1] + s * rel[..., 0] + c * rel[..., 1]
+        moved[..., 2] = pts[None, :, 2]
+        sd = shape.signed_distance(moved.reshape(-1, 3)).reshape(len(axes), -1)
+        kept += 0.5 * np.mean(np.abs(sd) <= ROUND_ON_M, axis=1)
+    return kept
+
+
+def roundest_axis(shape: ClassShape) -> np.ndarray:
+    """(2,) where the class turns, to the millimetre: the vertical axis most of its surface
+    stays on when turned by +-`ROUND_TURN_RAD` about it (a mug's body's axis, which only the
+    handle leaves), where more than `ROUND_SHARE` does and noticeably more than about its
+    solid's centroid; else that centroid (a box, which no axis keeps, turns about its
+    centre; a round class's axis is its centroid, not a millimetre beside it by chance)."""
+    centroid = solid_centroid(shape)
+    near = np.argwhere(np.abs(shape.values) < 0.5 * shape.step)
+    if not len(near):
+        return np.round(centroid, 3) + 0.0
+    near = near[:: max(1, len(near) // ROUND_POINTS)]
+    pts = shape.origin + shape.step * near
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    best, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
+    for step in ROUND_STEPS_M:
+        grid = [np.arange(best[i] - half[i], best[i] + half[i] + 1e-9, step) for i in range(2)]
+        cands = np.stack(np.meshgrid(*grid, indexing="ij"), axis=-1).reshape(-1, 2)
+        kept = kept_on_surface(shape, pts, cands)
+        best = cands[int(np.argmax(kept))]
+        half = np.full(2, 2.0 * ROUND_STEPS_M[0])
+    at_best, at_centroid = kept_on_surface(shape, pts, np.stack([best, centroid]))
+    round_about = at_best > ROUND_SHARE and at_best > at_centroid + 0.01
+    return np.round(best if round_about else centroid, 3) + 0.0
+
+
+def has_pivot(d: dict[str, np.ndarray]) -> bool:
+    """Whether stored grid arrays `d` hold a pivot found by this `roundest_axis`."""
+    version = d.get("pivot_version")
+    return "pivot" in d and version is not None and int(np.ravel(version)[0]) == PIVOT_VERSION
 
 
 @njit(cache=True)
@@ -287,6 +389,22 @@ def in_object_frames(points: np.ndarray, hyps: np.ndarray) -> np.ndarray:
     return np.einsum("hji,hmj->hmi", r, points[None, :, :] - t)  # R^T (p - t)
 
 
+def class_frames(hyps: np.ndarray, pivots: np.ndarray) -> np.ndarray:
+    """(K, H, 3) each class's frame offset (dx, dy, yaw of its origin) under each hypothesis
+    `hyps` (H, 3), a hypothesis being a move of the class's pivot (`pivots` (K, 2)) by dx,
+    dy and a turn by yaw about it: the origin moves by d + p - R(yaw) p."""
+    r = yaw_rotation(hyps[:, 2])[:, :2, :2]  # (H, 2, 2)
+    out = np.repeat(hyps[None, :, :], len(pivots), axis=0)
+    out[:, :, :2] += pivots[:, None, :] - np.einsum("hij,kj->khi", r, pivots)
+    return out
+
+
+def pivot_groups(pivots: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct `pivots` (G, 2) and each class's index among them (K,)."""
+    unique, groups = np.unique(pivots, axis=0, return_inverse=True)
+    return unique, groups.reshape(-1)
+
+
 # Where a grasp shows the object is not: hand-frame points from the grasp (its hand's model).
 # A masked sensor's site stays among them: leaving it out (its silence says nothing) cost
 # 0.14 [0.03, 0.27] grasps on the tuning seeds (docs/benchmark.md), as such a site is free
@@ -326,13 +444,16 @@ def grasp_log_likelihood(
     p: PoseParams,
     lifts: np.ndarray | None = None,
 ) -> np.ndarray:
-    """(K, H) log p(grasp | class, hypothesis) from its contacts and free points. `lifts`
-    (K,): how far each class's frame stands above the nominal one (`class_lifts`)."""
-    H, nc = len(hyps), len(contacts)
-    pts = in_object_frames(np.concatenate([contacts, free]), hyps).reshape(-1, 3)
+    """(K, H) log p(grasp | class, hypothesis) from its contacts and free points. `hyps`:
+    the object frame's offsets (H, 3), or each class's own (K, H, 3: `class_frames`).
+    `lifts` (K,): how far each class's frame stands above the nominal one (`class_lifts`)."""
+    H, nc = hyps.shape[-2], len(contacts)
+    both = np.concatenate([contacts, free])
+    shared = in_object_frames(both, hyps).reshape(-1, 3) if hyps.ndim == 2 else None
     log_floor = np.log(p.floor)
     out = np.zeros((len(shapes), H))
     for k, shape in enumerate(shapes):
+        pts = shared if shared is not None else in_object_frames(both, hyps[k]).reshape(-1, 3)
         q = pts if lifts is None or lifts[k] == 0.0 else pts - np.array([0.0, 0.0, lifts[k]])
         sd = shape.signed_distance(q).reshape(H, -1)
         if nc:
@@ -483,21 +604,33 @@ APART_STEPS = 1.5
 
 
 def rival_placement(
-    peaks: np.ndarray, scores: np.ndarray, scale: np.ndarray, best: int, share: float
+    peaks: np.ndarray,
+    scores: np.ndarray,
+    scale: np.ndarray,
+    best: int,
+    share: float,
+    whole: np.ndarray | None = None,
 ) -> int | None:
     """The index of the placement most of the classes agree on after `best` (`peaks` (n, 3),
     `scores` (n,) from `coalition_scores`) among those more than `APART_STEPS` of `scale`
-    from it, if its score is at least `share` of the best's; else None. A grasp placed for
-    one group of classes lands on their training poses and off the others', whose training
-    grasps then read blurred and lose to the group's: grasps shared between two rival
-    placements give neither that edge."""
+    from it, if its score is at least `share` of the best's, or its score by the whole
+    belief (`whole` (n,), the same coalitions weighed by the class marginal with the training
+    grasps' term) is; else None. A grasp placed for one group of classes lands on their
+    training poses and off the others', whose training grasps then read blurred and lose to
+    the group's: grasps shared between two rival placements give neither that edge. The
+    mesh cannot tell a plain mug from three handle mugs whose handles no finger reached, so
+    by it alone the plain mug's frame had a quarter of their support while the training
+    grasps made it the likeliest class, and every grasp went to their frame until theirs won."""
     if share <= 0:
         return None
     apart = np.flatnonzero(placement_gaps(peaks, peaks[best], scale) > APART_STEPS)
     if not apart.size:
         return None
-    rival = int(apart[np.argmax(scores[apart])])
-    return rival if scores[rival] >= share * scores[best] else None
+    support = scores[apart] / scores[best]
+    if whole is not None and whole[best] > 0:
+        support = np.maximum(support, whole[apart] / whole[best])
+    i = int(np.argmax(support))
+    return int(apart[i]) if support[i] >= share else None
 
 
 # Hypotheses whose best class is this far (nats) below the best pair get no training-grasp
@@ -520,7 +653,10 @@ class PoseBelief:
     finger_sensors: int = 0  # the hand's sensors per finger (`GraspLikelihood.log_likelihood`)
 
     def __post_init__(self) -> None:
-        self.hyps = pose_grid(self.params)
+        self.hyps = pose_grid(self.params)  # moves of each class's pivot
+        self.pivots = np.array([s.pivot_xy for s in self.shapes]).reshape(-1, 2)
+        self.frames = class_frames(self.hyps, self.pivots)  # (K, H, 3) where its frame stands
+        self._pivots, self._groups = pivot_groups(self.pivots)
         self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
         self.lifts = class_lifts(self.shapes, self.support_z)
         self._nominal = int(np.flatnonzero(np.all(self.hyps == 0.0, axis=1))[0])  # h = 0
@@ -534,16 +670,19 @@ class PoseBelief:
             self.mesh_log_b = drifted(self.mesh_log_b, self.hyps, self.params.drift_m)
         self._grasps += 1
         contacts, free = grasp_points(grasp, pose, self.free_sites)
-        mesh = grasp_log_likelihood(self.shapes, self.hyps, contacts, free, self.params, self.lifts)
+        mesh = grasp_log_likelihood(
+            self.shapes, self.frames, contacts, free, self.params, self.lifts
+        )
         self.mesh_log_b = self.mesh_log_b + mesh
         total = self.log_b + mesh
         if self.grasps is not None:
             model_l, lp = self.grasps
             best = total.max(axis=0)
             live = np.flatnonzero(best >= best.max() - PRUNE_NATS)
-            x = wrist_under_hypotheses(pose, self.hyps[live])
+            at = class_frames(self.hyps[live], self._pivots)  # (G, L, 3)
+            x = np.stack([wrist_under_hypotheses(pose, f) for f in at])
             train = model_l.log_likelihood_at_poses(
-                grasp, x, lp, ignore, self.finger_sensors
+                grasp, x, lp, ignore, self.finger_sensors, self._groups
             )  # (L, K)
             term = np.full(total.shape, float(train.min()))
             term[:, live] = train.T
@@ -559,7 +698,7 @@ class PoseBelief:
         return softmax_belief(self.class_log_belief())
 
     def estimate(self, k: int) -> PoseEstimate:
-        return pose_estimate(self.log_b, self.hyps, k)
+        return pose_estimate(self.log_b, self.frames[k], k)
 
     def placement_peak(self) -> np.ndarray:
         """(3,) where the object most likely stands by the mesh's term alone: the nominal
@@ -578,13 +717,27 @@ class PoseBelief:
         if anyone[self._nominal] >= anyone.max() - NOMINAL_NATS:
             return np.zeros(3)  # where training grasped is as good as any: stay on it
         w = softmax_belief(logsumexp(self.mesh_log_b, axis=1))
-        live = np.flatnonzero(w >= COALITION_WEIGHT)
-        peaks = np.array([peak_offset(self.mesh_log_b[k], self.hyps) for k in live])
+        whole = self.class_probabilities()
+        live = np.flatnonzero((w >= COALITION_WEIGHT) | (whole >= COALITION_WEIGHT))
+        peaks = np.array(
+            [self._frame_of(peak_offset(self.mesh_log_b[k], self.hyps), k) for k in live]
+        )
         scale = np.array([self.params.step_m, self.params.step_m, np.deg2rad(self.params.step_deg)])
         scores = coalition_scores(peaks, w[live], scale)
         best = int(np.argmax(scores))
         if self._grasps % 2 == 1:  # every other grasp: the rival placement, if there is one
-            rival = rival_placement(peaks, scores, scale, best, self.params.alternate_share)
+            rival = rival_placement(
+                peaks,
+                scores,
+                scale,
+                best,
+                self.params.alternate_share,
+                coalition_scores(peaks, whole[live], scale),
+            )
             if rival is not None:
                 return peaks[rival]
         return peaks[best]
+
+    def _frame_of(self, h: np.ndarray, k: int) -> np.ndarray:
+        """(3,) class `k`'s frame offset when its pivot is moved by the hypothesis `h`."""
+        return class_frames(h[None, :], self.pivots[k : k + 1])[0, 0]

@@ -74,6 +74,7 @@ from activetouch.recognition.pose_belief import (
     PoseBelief,
     PoseParams,
     free_sites_for,
+    has_pivot,
 )
 from activetouch.session.sensors import RecognitionSensors
 from activetouch.storage import atomic_write_bytes
@@ -698,17 +699,22 @@ def _class_shape(mesh: str, mtime_ns: int) -> ClassShape:
     """The mesh's signed-distance grid, from the file beside it when that is as new (a few
     seconds per object to build: a daemon's first recognition should not wait for it)."""
     cache = Path(mesh).with_name(f".sdf-v{SDF_VERSION}-{mtime_ns}.npz")
+    shape = None
     if cache.is_file():
         try:
-            return ClassShape.from_arrays(dict(np.load(cache)))
+            stored = dict(np.load(cache))
+            shape = ClassShape.from_arrays(stored)
         except (OSError, ValueError, KeyError):
             log.warning("%s: unreadable, rebuilt", cache)
-    # deferred: loads trimesh
-    import trimesh
+        if shape is not None and has_pivot(stored):
+            return shape
+    if shape is None:
+        # deferred: loads trimesh
+        import trimesh
 
-    m = trimesh.load(mesh, force="mesh")
-    shape = ClassShape.from_mesh(m.vertices, m.faces)
-    try:
+        m = trimesh.load(mesh, force="mesh")
+        shape = ClassShape.from_mesh(m.vertices, m.faces)
+    try:  # (a grid stored without this version's pivot: stored again with it)
         buf = io.BytesIO()
         np.savez(buf, **shape.to_arrays())
         atomic_write_bytes(cache, buf.getvalue())

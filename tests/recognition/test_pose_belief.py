@@ -18,6 +18,7 @@ from activetouch.recognition.pose_belief import (
     ClassShape,
     PoseBelief,
     PoseParams,
+    class_frames,
     class_lifts,
     drifted,
     grasp_log_likelihood,
@@ -26,6 +27,7 @@ from activetouch.recognition.pose_belief import (
     pose_grid,
     reflex_free_sites,
     rival_placement,
+    roundest_axis,
 )
 
 BOX = (0.10, 0.06, 0.08)
@@ -257,8 +259,10 @@ class _FavourClass:
     def __init__(self, k: int, n_classes: int, nats: float) -> None:
         self.k, self.n, self.nats = k, n_classes, nats
 
-    def log_likelihood_at_poses(self, grasp, poses, params, ignore=None, finger_sensors=0):
-        out = np.zeros((len(poses), self.n))
+    def log_likelihood_at_poses(
+        self, grasp, poses, params, ignore=None, finger_sensors=0, class_groups=None
+    ):
+        out = np.zeros((np.shape(poses)[-2], self.n))
         out[:, self.k] = self.nats
         return out
 
@@ -305,7 +309,7 @@ def test_the_grasps_go_where_most_of_the_likely_classes_have_the_object(box):
     np.testing.assert_allclose(belief.placement_peak()[:2], a, atol=1e-3)
     belief._grasps = 0
     # With one of the three, B's class is the likelier and the grasps go to B.
-    belief.mesh_log_b = belief.mesh_log_b[:2]
+    belief.mesh_log_b, belief.log_b = belief.mesh_log_b[:2], belief.log_b[:2]
     np.testing.assert_allclose(belief.placement_peak()[:2], b, atol=1e-3)
 
 
@@ -345,6 +349,58 @@ def test_a_rival_placement_is_one_apart_from_the_best_with_enough_support():
     assert rival_placement(peaks, scores, scale, 0, 0.5) == 3
     assert rival_placement(peaks, scores, scale, 0, 0.7) is None
     assert rival_placement(peaks, scores, scale, 0, 0.0) is None  # sharing off
+    # The mesh alone gives the far placement under half the best's support, the whole belief
+    # (the training grasps' term with it) twice the best's: it is a rival all the same.
+    far = np.array([[0.0, 0.0, 0.0], [0.017, 0.0, 0.0], [0.0, 0.03, 0.0]])
+    mesh, whole = np.array([1.0, 0.25, 0.2]), np.array([0.3, 0.6, 0.1])
+    assert rival_placement(far, mesh, scale, 0, 0.5) is None
+    assert rival_placement(far, mesh, scale, 0, 0.5, whole) == 1
+    assert rival_placement(far, mesh, scale, 0, 0.5, np.array([0.9, 0.05, 0.05])) is None
     # Yaw wraps: 2 pi - 0.01 rad is 0.01 rad from 0, the same placement.
     wrapped = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 2 * np.pi - 0.01]])
     assert rival_placement(wrapped, np.array([1.0, 1.0]), scale, 0, 0.5) is None
+
+
+def _mug(body_x: float) -> trimesh.Trimesh:
+    """A cup (`_cup`) with a handle on its +x side, its body's axis at x = `body_x`."""
+    handle = trimesh.creation.box(extents=(0.03, 0.012, 0.06))
+    handle.apply_translation([0.05, 0.0, 0.05])  # 2.5 cm out from the wall
+    mug = _cup().union(handle)
+    mug.apply_translation([body_x, 0.0, 0.0])
+    assert mug.is_watertight
+    return mug
+
+
+def test_a_class_turns_about_its_bodys_axis_or_a_boxs_centre(box):
+    # A mug's frame is off its body (the bounding box's centre, with the handle): turned
+    # about the body's axis only the handle leaves the surface. No axis keeps a box: its
+    # centre. Each found from the signed distances alone, checked against the geometry.
+    mug = _mug(-0.017)
+    shape = ClassShape.from_mesh(mug.vertices, mug.faces)
+    np.testing.assert_allclose(shape.pivot_xy, [-0.017, 0.0], atol=1.01e-3)
+    np.testing.assert_allclose(roundest_axis(box), [0.0, 0.0], atol=1e-9)
+    shifted = trimesh.creation.cylinder(radius=0.03, height=0.08, sections=48)
+    shifted.apply_translation([0.011, -0.004, 0.0])
+    cyl = ClassShape.from_mesh(shifted.vertices, shifted.faces)
+    np.testing.assert_allclose(cyl.pivot_xy, [0.011, -0.004], atol=1.01e-3)
+    # Stored with the grid, and found again for a grid stored before it was.
+    back = ClassShape.from_arrays(shape.to_arrays())
+    assert np.array_equal(back.pivot_xy, shape.pivot_xy)
+    old = {k: v for k, v in shape.to_arrays().items() if k != "pivot"}
+    assert np.array_equal(ClassShape.from_arrays(old).pivot_xy, shape.pivot_xy)
+    other = {**shape.to_arrays(), "pivot": np.ones(2), "pivot_version": np.array([0])}
+    assert np.array_equal(ClassShape.from_arrays(other).pivot_xy, shape.pivot_xy)
+
+
+def test_a_hypothesis_moves_and_turns_each_class_about_its_pivot():
+    hyps = np.array([[0.0, 0.0, 0.0], [0.01, 0.0, np.deg2rad(90.0)]])
+    pivots = np.array([[0.0, 0.0], [-0.017, 0.0]])
+    frames = class_frames(hyps, pivots)
+    np.testing.assert_allclose(frames[:, 0], 0.0)  # no move: every frame where it was
+    np.testing.assert_allclose(frames[0, 1], hyps[1])  # about the origin: the hypothesis
+    # About (-17 mm, 0): the origin turns a quarter round the pivot to (-17, 17) mm, then
+    # moves 1 cm in x; the body's axis itself only moves the 1 cm.
+    np.testing.assert_allclose(frames[1, 1], [-0.007, 0.017, np.deg2rad(90.0)], atol=1e-12)
+    axis = np.array([[-0.017, 0.0, 0.05]])
+    moved = axis + np.array([0.01, 0.0, 0.0])  # where the body's axis stands under the hypothesis
+    np.testing.assert_allclose(in_object_frames(moved, frames[1, 1:])[0, 0], axis[0], atol=1e-12)
