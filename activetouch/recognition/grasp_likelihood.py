@@ -367,14 +367,19 @@ class GraspLikelihood:
             keep,
             finger_censor(ignore, finger_sensors, self.words),
         )
-        out = np.empty((P, K))
-        for g in range(G):
+        if G == 1:
+            w = cut_pose_weights_at(self.poses[cand], x[0], s_m, s_r, _WEIGHT_CUTOFF)  # (P, cand)
+            return self._class_log_average(w, k, cand, params.floor)
+        lik, has = np.zeros((P, K)), np.zeros((P, K), dtype=bool)
+        for g in range(G):  # each group's poses against its own classes' training grasps only
             cols = groups == g
-            if G > 1 and not cols.any():
+            at = np.flatnonzero(cols[self.labels[cand]])
+            if not at.size:
                 continue
-            w = cut_pose_weights_at(self.poses[cand], x[g], s_m, s_r, _WEIGHT_CUTOFF)  # (P, cand)
-            out[:, cols] = self._class_log_average(w, k, cand, params.floor)[:, cols]
-        return out
+            w = cut_pose_weights_at(self.poses[cand[at]], x[g], s_m, s_r, _WEIGHT_CUTOFF)
+            lg, hg = self._class_means(w, k[:, at], cand[at])
+            lik[:, cols], has[:, cols] = lg[:, cols], hg[:, cols]
+        return self._log_with_no_say(lik, has, params.floor)
 
     def training_log_likelihoods(
         self, params: LikelihoodParams, offsets: np.ndarray | None = None
@@ -507,10 +512,22 @@ class GraspLikelihood:
         y's grasps among `rows`: (P, R) weights of P poses and (n, R) kernels of n grasps, one
         of P and n being 1; (max(P, n), K). A class with no weight at a pose gets the mean of
         those that have (no say); nowhere near any: 1."""
+        return self._log_with_no_say(*self._class_means(w, k, rows), floor)
+
+    def _class_means(
+        self, w: np.ndarray, k: np.ndarray, rows: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Each class's pose-weighted mean kernel (`_class_log_average`) and whether it has
+        any weight there, both (max(P, n), K)."""
         num = self._per_class_sums(w * k, rows)
         den = self._per_class_sums(w, rows)  # (P, K)
         has = np.broadcast_to(den > 0, num.shape)
-        lik = np.where(has, num / np.where(den > 0, den, 1.0), 0.0)
+        return np.where(has, num / np.where(den > 0, den, 1.0), 0.0), has
+
+    @staticmethod
+    def _log_with_no_say(lik: np.ndarray, has: np.ndarray, floor: float) -> np.ndarray:
+        """log(`lik` + floor), a class without weight at a pose (`has` False) given the mean
+        of those with; nowhere near any: 1."""
         n_has = has.sum(axis=1, keepdims=True)
         mean = np.where(n_has > 0, lik.sum(axis=1, keepdims=True) / np.maximum(n_has, 1), 1.0)
         return np.log(np.where(has, lik, mean) + floor)

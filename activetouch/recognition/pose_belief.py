@@ -449,11 +449,17 @@ def grasp_log_likelihood(
     `lifts` (K,): how far each class's frame stands above the nominal one (`class_lifts`)."""
     H, nc = hyps.shape[-2], len(contacts)
     both = np.concatenate([contacts, free])
-    shared = in_object_frames(both, hyps).reshape(-1, 3) if hyps.ndim == 2 else None
+    if hyps.ndim == 2:
+        hyps = hyps[None]
+        groups = np.zeros(len(shapes), dtype=np.int64)
+    else:  # classes whose frames move alike share one transform (most turn about the origin)
+        hyps, groups = np.unique(hyps, axis=0, return_inverse=True)
+        groups = groups.reshape(-1)
+    moved = [in_object_frames(both, h).reshape(-1, 3) for h in hyps]
     log_floor = np.log(p.floor)
     out = np.zeros((len(shapes), H))
     for k, shape in enumerate(shapes):
-        pts = shared if shared is not None else in_object_frames(both, hyps[k]).reshape(-1, 3)
+        pts = moved[groups[k]]
         q = pts if lifts is None or lifts[k] == 0.0 else pts - np.array([0.0, 0.0, lifts[k]])
         sd = shape.signed_distance(q).reshape(H, -1)
         if nc:

@@ -193,24 +193,29 @@ def test_many_poses_at_once_give_what_each_pose_alone_gives() -> None:
 
 def test_each_class_at_its_own_poses_gives_what_those_poses_alone_give() -> None:
     # Classes that turn about different points stand elsewhere under one hypothesis: class y
-    # is read at poses[class_groups[y]], as if asked with those poses alone.
+    # is read at poses[class_groups[y]], as if asked with those poses alone. Every class has
+    # a grasp at every training pose (the shared grid), so each has a say near them.
     rng = np.random.default_rng(5)
+    poses = np.concatenate([rng.uniform(-0.1, 0.1, (40, 3)), rng.normal(size=(40, 4))], axis=1)
     per_class = []
     for _ in range(3):
-        poses = np.concatenate([rng.uniform(-0.1, 0.1, (40, 3)), rng.normal(size=(40, 4))], axis=1)
         gs = [grasp(sorted(rng.choice(38, 3, replace=False).tolist())) for _ in range(40)]
         per_class.append((poses, gs))
     lik = GraspLikelihood.fit(per_class)
     params = LikelihoodParams()
     g = grasp([2, 7, 31], (0.9, 1.0, 1.2))
-    xs = np.concatenate([rng.uniform(-0.05, 0.05, (2, 12, 3)), rng.normal(size=(2, 12, 4))], axis=2)
-    xs[1, -1, :3] = [5.0, 5.0, 5.0]  # nowhere near any training grasp: no evidence
+    xs = poses[rng.choice(40, (2, 12))].copy()
+    xs[..., :3] += rng.normal(0.0, 0.003, (2, 12, 3))
+    xs[1, -1, :3] = [5.0, 5.0, 5.0]  # nowhere near any training grasp
     groups = np.array([1, 0, 1])
     both = lik.log_likelihood_at_poses(g, xs, params, class_groups=groups)
     for y, grp in enumerate(groups):
         alone = lik.log_likelihood_at_poses(g, xs[grp], params)
-        assert both[:, y] == pytest.approx(alone[:, y], abs=1e-12)
-    assert both[-1, [0, 2]] == pytest.approx(np.log(1.0 + params.floor))
+        assert both[:-1, y] == pytest.approx(alone[:-1, y], abs=1e-12)
+    # At the last hypothesis classes 0 and 2 stand nowhere near a training grasp: no say,
+    # they get what class 1 (standing elsewhere, near its grasps) has there.
+    assert both[-1, 1] == pytest.approx(lik.log_likelihood_at_poses(g, xs[0], params)[-1, 1])
+    assert both[-1, [0, 2]] == pytest.approx([both[-1, 1]] * 2, abs=1e-12)
 
 
 def test_training_grasps_in_any_class_order_give_the_same_likelihood() -> None:
