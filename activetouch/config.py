@@ -135,7 +135,8 @@ class RecognitionConfig:
     # at least this share of the first's support (`rival_placement`; 0: never). Each class's
     # training grasps read sharp only on its own frame's poses, so grasps all placed for three
     # handle mugs took a plain mug's runs; shared, neither frame has the edge (hard library,
-    # all errors, tuning seeds 100-109: 96.7 % against 94.8 %; docs/benchmark.md).
+    # all errors, tuning seeds 100-109: 96.7 % against 94.8 %; docs/benchmark.md). The
+    # support is the mesh's term's or the whole belief's, whichever gives the rival more.
     pose_alternate_share: float = 0.5
     # ... plus the training grasps' likelihood at the wrist pose each hypothesis implies
     pose_with_grasps: bool = True

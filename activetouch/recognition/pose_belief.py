@@ -4,7 +4,7 @@ The paper assumes the object stands exactly where the workcell says. A lab's obj
 centimetres and degrees off, and then every grasp is compared with training grasps made at a
 pose the hand was not at. This belief keeps hypotheses h = (dx, dy, yaw) of where the object
 really stands (on the table: x, y and a turn about the vertical through the class's pivot,
-the centroid of its solid, so a mug turns about its body and not about its bounding box's
+the axis it is roundest about, so a mug turns about its body and not about its bounding box's
 centre beside it) and weighs each grasp under each (class y, h) with y's mesh:
 
 - every contact (a sensor site that read contact) should lie on the surface: a Gaussian in
@@ -192,8 +192,8 @@ class ClassShape:
         The frame's origin is its bounding box's centre, 17 mm off a handle mug's body:
         turned about it, the body swings along an arc that meets the placements' 1 cm grid
         nearer to where the contacts fit best than a plain mug's body, which stands in one
-        place however it is turned, and the handle mugs won a plain mug's runs on that alone
-        (docs/benchmark.md)."""
+        place however it is turned: an edge for the handle mugs that their shapes do not give
+        them (docs/benchmark.md)."""
         if self.pivot is None:
             self.pivot = roundest_axis(self)
         return self.pivot
