@@ -172,3 +172,40 @@ def is_newer(systime_us: int, last_us: int | None, restart_us: int = 1_000_000) 
         return True
     back = (1 << 32) - delta
     return back > restart_us
+
+
+SERVO_NAMES = (
+    "finger 0 (pointer) servo",
+    "finger 1 (middle) servo",
+    "finger 2 (thumb) servo",
+    "preshape servo",
+)
+
+
+def servo_faults(p: StatePacket, window: list[int], max_temp: float) -> list[str]:
+    """What cannot be true in a packet's servo fields, one sentence per servo (empty: fine)."""
+    lo, hi = window
+    out = []
+    for i, name in enumerate(SERVO_NAMES):
+        pos = int(p.dxl_position[i])
+        if pos == 0:
+            out.append(
+                f"{name} (motor {i}) reads position 0: it has not answered the board "
+                "(check its cable and power, then power-cycle the hand)"
+            )
+        elif not lo <= pos <= hi:
+            out.append(
+                f"{name} (motor {i}) reads position {pos}, outside the firmware's "
+                f"window {lo}..{hi} around 13000 (check its horn and tendon, then "
+                "power-cycle the hand)"
+            )
+        errs = dxl_error_names(int(p.dxl_error[i]))
+        if errs:
+            out.append(
+                f"{name} (motor {i}) reports alarm {', '.join(errs)} (check its load, "
+                "supply and temperature; power-cycle the hand to clear it)"
+            )
+        temp = float(p.dxl_temperature[i])
+        if temp > max_temp:
+            out.append(f"{name} (motor {i}) is at {temp:.0f} C (> {max_temp:g}): let it cool")
+    return out

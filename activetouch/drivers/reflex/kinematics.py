@@ -6,7 +6,8 @@ Conventions of reflex-ros-pkg's ``reflex_driver_node.cpp`` (protocol facts B.2, 
 - proximal angle from the 14-bit finger encoder, unwrapped across 16383 -> 0; the driver at
   HEAD uses ``encoder_zero - counts * scale`` (an older one the opposite sign): `encoder_sign`;
 - distal ≈ max(0, motor - proximal) (the tendon spooled beyond the proximal joint);
-- load: bits 0-9 magnitude, bit 10 direction, times the motor inversion.
+- load: raw > 1023 -> raw - 1023, else -raw (upstream's, not the servo's bit-10 sign), times
+  the motor inversion; speeds the other way, to the MX-28's moving-speed units.
 
 Contact sites from these joint angles are `activetouch.models.reflex.sensor_positions`, the
 kinematics the twin uses, so grasps from the hardware and the twin are in one frame.
@@ -49,11 +50,24 @@ def motor_raw(
     return np.clip(np.rint(raw), 0, hi).astype(np.int64)
 
 
-def load_signed(raw: np.ndarray, inverted: np.ndarray) -> np.ndarray:
-    """Signed load in raw units (-1023..1023): positive when bit 10 is set, times inversion."""
-    raw = np.asarray(raw, dtype=np.int64)
-    mag = raw & 0x3FF
-    return np.asarray(inverted) * np.where(raw & 0x400, mag, -mag)
+def load_from_raw(raw: np.ndarray, inverted: np.ndarray) -> np.ndarray:
+    """Signed load of raw present-load values, as reflex-ros-pkg: raw > 1023 -> raw - 1023,
+    else -raw; times the motor inversion (before the EMA)."""
+    raw = np.asarray(raw, dtype=np.float64)
+    return np.asarray(inverted) * np.where(raw > 1023, raw - 1023, -raw)
+
+
+DXL_SPEED_UNIT = 0.01194  # rad/s per moving-speed unit (MX-28: 0.114 rpm)
+
+
+def speed_raw(rad_s: float, gear: float, inverted: int) -> int:
+    """A joint speed as the MX-28 moving-speed value the firmware writes in VELOCITY mode:
+    |speed| * gear / 0.01194 rad/s per unit, at most 1023, +1024 for the reverse sense, never
+    0 (0 means "no limit" to the servo), as reflex-ros-pkg's speed_rad_to_raw."""
+    cmd = min(1023, int(abs(rad_s) * gear / DXL_SPEED_UNIT))
+    if inverted * rad_s < 0:
+        cmd += 1024
+    return max(1, cmd)
 
 
 class EncoderUnwrapper:

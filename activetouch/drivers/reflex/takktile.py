@@ -10,8 +10,9 @@ waiting close, which raises `StoppedError` without sending anything more; no sta
 for `stream_timeout_s` marks the hand stale, commands the motors to hold and makes every
 waiting command raise `StreamLostError` (nothing waits longer than that).
 
-First power-on (issue 23): connecting moves nothing (goals at the measured positions, then
-upstream's VELOCITY -> speeds -> POSITION, once; again only after a board restart); a reading
+The calibration records it is handed: `takktile_calibration`. First power-on (issue 23):
+connecting moves nothing (goals at the measured positions, then upstream's VELOCITY ->
+speeds -> POSITION, once; again only after a board restart); a reading
 that cannot be true (a servo at 0, outside the window, an alarm, too hot) stops the hand with
 an error naming the servo and is never used for a hold; IDLE at disconnect. Without a tactile
 calibration (handed in by `make()`) the hand reports no contacts and refuses to grasp.
@@ -29,8 +30,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from activetouch import paths
-from activetouch.calibration import store
 from activetouch.calibration.tactile import (
     TactileSettings,
     fit_tactile,
@@ -49,6 +48,12 @@ from activetouch.drivers.reflex.common import (
     close_step,
     parse_address,
 )
+from activetouch.drivers.reflex.takktile_calibration import (
+    DEFAULT_MOTOR_ZERO_POINTS,
+    FingerZero,
+    TactileZero,
+    stored_calibration,
+)
 from activetouch.drivers.reflex.udp import open_socket
 from activetouch.errors import ActiveTouchError, ConfigError, StoppedError
 from activetouch.interfaces import N_FINGERS, N_SENSORS, SENSORS_PER_FINGER, Grasp, Hand, StopLatch
@@ -59,23 +64,10 @@ if TYPE_CHECKING:
 
     from activetouch.devices import DeviceContext
 
+
 log = logging.getLogger(__name__)
 
 
-# The public finger calibration of reflex-ros-pkg (reflex_driver/yaml/finger_calibrate.yaml,
-# motor_zero_reference, in raw * scale / gear) times the gear ratios: servo-side motor radians.
-# Used only when neither hand.motor_zero_points nor a stored finger calibration gives them.
-UPSTREAM_MOTOR_ZERO_REFERENCE = (59.6108, 56.3347, 58.7118, 55.2246)
-UPSTREAM_GEAR = (1.42, 1.42, 1.42, 1.5)
-DEFAULT_MOTOR_ZERO_POINTS = tuple(
-    round(z * g, 6) for z, g in zip(UPSTREAM_MOTOR_ZERO_REFERENCE, UPSTREAM_GEAR, strict=True)
-)
-SERVO_NAMES = (
-    "finger 0 (pointer) servo",
-    "finger 1 (middle) servo",
-    "finger 2 (thumb) servo",
-    "preshape servo",
-)
 CALIBRATE_TACTILE = "activetouch calibrate tactile"
 
 
@@ -213,120 +205,6 @@ class ReflexTakktileConfig(HandConfig):
         if self.load_calibration:
             tactile, fingers = stored_calibration(device, ctx.data)
         return ReflexTakktileHand(self, tactile=tactile, fingers=fingers, device=device)
-
-
-@dataclass(frozen=True)
-class TactileZero:
-    """A tactile calibration handed to the driver: per-sensor zero and threshold (38,)."""
-
-    zero: np.ndarray
-    threshold: np.ndarray
-    source: str = ""
-    flags: dict[int, str] = field(default_factory=dict)  # sensor id -> calibration flag
-
-
-@dataclass(frozen=True)
-class FingerZero:
-    """A finger calibration handed to the driver: servo-side motor zero points (4,) and
-    encoder zeros (3,)."""
-
-    motor_zero_points: np.ndarray
-    encoder_zero_rad: np.ndarray
-    source: str = ""
-
-
-def stored_calibration(device: str, data: object) -> tuple[TactileZero | None, FingerZero | None]:
-    """The stored tactile and finger records of `device` (None where missing; a missing or old
-    one is logged with the command that makes it)."""
-
-    root = paths.data_dir(data)  # type: ignore[arg-type]
-    out: list[object] = []
-    for kind in ("tactile", "fingers"):
-        rec = store.load(root, kind, device)
-        why = store.staleness(rec, kind)
-        if why:
-            log.warning("calibration: %s", why)
-        if rec is None:
-            out.append(None)
-            continue
-        src = f"{store.record_path(root, kind, device)} (measured {rec.measured_at})"
-        v = rec.values
-        if kind == "tactile":
-            out.append(
-                TactileZero(
-                    np.asarray(v["zero"], float),
-                    np.asarray(v["threshold"], float),
-                    src,
-                    flags_by_sensor(v.get("flags")),
-                )
-            )
-        elif "motor_zero_points" in v:
-            out.append(
-                FingerZero(
-                    np.asarray(v["motor_zero_points"], float),
-                    np.asarray(v["encoder_zero_rad"], float),
-                    src,
-                )
-            )
-        else:  # records before motor_zero_points: joint-side zeros (raw * scale / gear)
-            gear = np.asarray(UPSTREAM_GEAR)
-            out.append(
-                FingerZero(
-                    np.asarray(v["motor_zero_rad"], float) * gear,
-                    np.asarray(v["encoder_zero_rad"], float),
-                    src,
-                )
-            )
-    return out[0], out[1]  # type: ignore[return-value]
-
-
-def speed_raw(rad_s: float, gear: float, inverted: int) -> int:
-    """A joint speed as the MX-28 moving-speed value the firmware writes in VELOCITY mode:
-    |speed| * gear / 0.01194 rad/s per unit, at most 1023, +1024 for the reverse sense, never
-    0 (0 means "no limit" to the servo), as reflex-ros-pkg's speed_rad_to_raw."""
-    cmd = min(1023, int(abs(rad_s) * gear / DXL_SPEED_UNIT))
-    if inverted * rad_s < 0:
-        cmd += 1024
-    return max(1, cmd)
-
-
-DXL_SPEED_UNIT = 0.01194  # rad/s per moving-speed unit (MX-28: 0.114 rpm)
-
-
-def load_from_raw(raw: np.ndarray, inverted: np.ndarray) -> np.ndarray:
-    """Signed load of raw present-load values, as reflex-ros-pkg: raw > 1023 -> raw - 1023,
-    else -raw; times the motor inversion (before the EMA)."""
-    raw = np.asarray(raw, dtype=np.float64)
-    return np.asarray(inverted) * np.where(raw > 1023, raw - 1023, -raw)
-
-
-def servo_faults(p: codec.StatePacket, window: list[int], max_temp: float) -> list[str]:
-    """What cannot be true in a packet's servo fields, one sentence per servo (empty: fine)."""
-    lo, hi = window
-    out = []
-    for i, name in enumerate(SERVO_NAMES):
-        pos = int(p.dxl_position[i])
-        if pos == 0:
-            out.append(
-                f"{name} (motor {i}) reads position 0: it has not answered the board "
-                "(check its cable and power, then power-cycle the hand)"
-            )
-        elif not lo <= pos <= hi:
-            out.append(
-                f"{name} (motor {i}) reads position {pos}, outside the firmware's "
-                f"window {lo}..{hi} around 13000 (check its horn and tendon, then "
-                "power-cycle the hand)"
-            )
-        errs = codec.dxl_error_names(int(p.dxl_error[i]))
-        if errs:
-            out.append(
-                f"{name} (motor {i}) reports alarm {', '.join(errs)} (check its load, "
-                "supply and temperature; power-cycle the hand to clear it)"
-            )
-        temp = float(p.dxl_temperature[i])
-        if temp > max_temp:
-            out.append(f"{name} (motor {i}) is at {temp:.0f} C (> {max_temp:g}): let it cool")
-    return out
 
 
 @dataclass(frozen=True)
@@ -502,7 +380,7 @@ class ReflexTakktileHand(Hand):
         cfg = self.cfg
         hold = r.motor.copy()
         speeds = [
-            speed_raw(v, float(g), int(i))
+            kinematics.speed_raw(v, float(g), int(i))
             for v, g, i in zip(cfg.motor_speed_rad_s, self.gear, self.inverted, strict=True)
         ]
         self._send(codec.encode_set_targets(self._raw_targets(hold)), motion=False)
@@ -719,10 +597,14 @@ class ReflexTakktileHand(Hand):
         prox = kinematics.proximal_angle(
             self._unwrap(p.encoders), self.encoder_zero, self.cfg.encoder_sign
         )
-        faults = tuple(servo_faults(p, self.cfg.servo_window, self.cfg.servo_max_temperature_c))
+        faults = tuple(
+            codec.servo_faults(p, self.cfg.servo_window, self.cfg.servo_max_temperature_c)
+        )
         if not faults:
             a = self.cfg.load_filter
-            self._load = a * load_from_raw(p.dxl_load, self.inverted) + (1 - a) * self._load
+            self._load = (
+                a * kinematics.load_from_raw(p.dxl_load, self.inverted) + (1 - a) * self._load
+            )
         contact = (pressures > self.thresholds) & ~self.masked
         if not self.tactile_calibrated:
             contact[:] = False  # unloaded raw counts are far above any threshold
@@ -804,7 +686,7 @@ class ReflexTakktileHand(Hand):
         if bad:
             i = bad[0]
             raise ValueError(
-                f"ReFlex: goal {int(raw[i])} for the {SERVO_NAMES[i]} is outside its window "
+                f"ReFlex: goal {int(raw[i])} for the {codec.SERVO_NAMES[i]} is outside its window "
                 f"{lo}..{hi} (hand.motor_zero_points wrong? run `activetouch calibrate fingers`)"
             )
         return raw.tolist()

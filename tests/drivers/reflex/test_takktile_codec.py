@@ -114,12 +114,18 @@ def test_motor_conversions_by_hand():
     assert np.allclose(back, [1.0, 1.0, 0.0, 0.8], atol=tick)
 
 
-def test_load_sign_and_encoder_unwrap():
-    assert kinematics.load_signed(np.array([0x400 | 300, 300]), np.array([1, 1])).tolist() == [
-        300,
-        -300,
-    ]
-    assert kinematics.load_signed(np.array([0x400 | 300]), np.array([-1])).tolist() == [-300]
+def test_load_speed_and_encoder_unwrap():
+    # Upstream's load_raw_to_signed: raw > 1023 -> raw - 1023 (so 1024 + 300 gives 301, not
+    # the servo's own bit-10 reading of 300), else -raw; times the inversion.
+    raw = np.array([1024 + 300, 300, 1023, 1024])
+    assert kinematics.load_from_raw(raw, np.ones(4)).tolist() == [301.0, -300.0, -1023.0, 1.0]
+    assert kinematics.load_from_raw(np.array([1024 + 300]), np.array([-1])).tolist() == [-301.0]
+    # Speeds: |rad/s| * gear / 0.01194 units, +1024 for the reverse sense, never 0.
+    assert kinematics.speed_raw(3.0, 1.42, 1) == int(3.0 * 1.42 / 0.01194)
+    assert kinematics.speed_raw(-3.0, 1.42, 1) == int(3.0 * 1.42 / 0.01194) + 1024
+    assert kinematics.speed_raw(3.0, 1.42, -1) == int(3.0 * 1.42 / 0.01194) + 1024
+    assert kinematics.speed_raw(100.0, 1.5, 1) == 1023
+    assert kinematics.speed_raw(0.0, 1.5, 1) == 1
     un = kinematics.EncoderUnwrapper(1)
     assert un(np.array([16380]))[0] == 16380
     assert un(np.array([3]))[0] == 16383 + 3  # forward across the wrap
