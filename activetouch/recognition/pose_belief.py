@@ -217,33 +217,23 @@ ROUND_SHARE = 0.5
 def solid_centroid(shape: ClassShape) -> np.ndarray:
     """(2,) x and y of the solid's centroid, each grid node weighted by its depth inside (a
     node count would lean by the grid's placement, by up to half a step)."""
-    w = np.maximum(-shape.values, 0.0)
+    w = np.maximum(-shape.values, 0.0).sum(axis=2)  # (nx, ny)
     total = float(w.sum())
     if total <= 0.0:
         return np.zeros(2)
-    return np.array(
-        [
-            shape.origin[i]
-            + shape.step
-            * float(w.sum(axis=tuple(j for j in range(3) if j != i)) @ np.arange(w.shape[i]))
-            / total
-            for i in range(2)
-        ]
-    )
+    ix, iy = np.indices(w.shape)
+    return shape.origin[:2] + shape.step * np.array([(w * ix).sum(), (w * iy).sum()]) / total
 
 
 def kept_on_surface(shape: ClassShape, pts: np.ndarray, axes: np.ndarray) -> np.ndarray:
     """(C,) for each vertical axis through `axes` (C, 2), the share of the surface points
     `pts` (N, 3) within `ROUND_ON_M` of the surface once turned by +-`ROUND_TURN_RAD` about
     it (the two turns' mean)."""
-    rel = pts[None, :, :2] - axes[:, None, :]  # (C, N, 2)
     kept = np.zeros(len(axes))
     for turn in (ROUND_TURN_RAD, -ROUND_TURN_RAD):
-        c, s = np.cos(turn), np.sin(turn)
-        moved = np.empty((*rel.shape[:2], 3))
-        moved[..., 0] = axes[:, None, 0] + c * rel[..., 0] - s * rel[..., 1]
-        moved[..., 1] = axes[:, None, 1] + s * rel[..., 0] + c * rel[..., 1]
-        moved[..., 2] = pts[None, :, 2]
+        # the class turned about each axis; its surface read in that frame: turned back
+        turned = class_frames(np.array([[0.0, 0.0, turn]]), axes)[:, 0]  # (C, 3)
+        moved = in_object_frames(pts, turned)  # (C, N, 3)
         sd = shape.signed_distance(moved.reshape(-1, 3)).reshape(len(axes), -1)
         kept += 0.5 * np.mean(np.abs(sd) <= ROUND_ON_M, axis=1)
     return kept
@@ -443,19 +433,17 @@ def grasp_log_likelihood(
     free: np.ndarray,
     p: PoseParams,
     lifts: np.ndarray | None = None,
+    groups: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K, H) log p(grasp | class, hypothesis) from its contacts and free points. `hyps`:
-    the object frame's offsets (H, 3), or each class's own (K, H, 3: `class_frames`).
+    the object frame's offsets (H, 3), or with `groups` (K,) those of each pivot group
+    (G, H, 3: `class_frames` of the distinct pivots), class k's being hyps[groups[k]].
     `lifts` (K,): how far each class's frame stands above the nominal one (`class_lifts`)."""
     H, nc = hyps.shape[-2], len(contacts)
     both = np.concatenate([contacts, free])
-    if hyps.ndim == 2:
-        hyps = hyps[None]
-        groups = np.zeros(len(shapes), dtype=np.int64)
-    else:  # classes whose frames move alike share one transform (most turn about the origin)
-        hyps, groups = np.unique(hyps, axis=0, return_inverse=True)
-        groups = groups.reshape(-1)
-    moved = [in_object_frames(both, h).reshape(-1, 3) for h in hyps]
+    if groups is None:
+        hyps, groups = hyps[None], np.zeros(len(shapes), dtype=np.int64)
+    moved = [in_object_frames(both, h).reshape(-1, 3) for h in hyps]  # once per group
     log_floor = np.log(p.floor)
     out = np.zeros((len(shapes), H))
     for k, shape in enumerate(shapes):
@@ -661,8 +649,9 @@ class PoseBelief:
     def __post_init__(self) -> None:
         self.hyps = pose_grid(self.params)  # moves of each class's pivot
         self.pivots = np.array([s.pivot_xy for s in self.shapes]).reshape(-1, 2)
-        self.frames = class_frames(self.hyps, self.pivots)  # (K, H, 3) where its frame stands
         self._pivots, self._groups = pivot_groups(self.pivots)
+        self._group_frames = class_frames(self.hyps, self._pivots)  # (G, H, 3)
+        self.frames = self._group_frames[self._groups]  # (K, H, 3) where each frame stands
         self.log_b = np.tile(log_prior(self.hyps, self.params), (len(self.shapes), 1))
         self.lifts = class_lifts(self.shapes, self.support_z)
         self._nominal = int(np.flatnonzero(np.all(self.hyps == 0.0, axis=1))[0])  # h = 0
@@ -677,7 +666,7 @@ class PoseBelief:
         self._grasps += 1
         contacts, free = grasp_points(grasp, pose, self.free_sites)
         mesh = grasp_log_likelihood(
-            self.shapes, self.frames, contacts, free, self.params, self.lifts
+            self.shapes, self._group_frames, contacts, free, self.params, self.lifts, self._groups
         )
         self.mesh_log_b = self.mesh_log_b + mesh
         total = self.log_b + mesh
@@ -685,8 +674,7 @@ class PoseBelief:
             model_l, lp = self.grasps
             best = total.max(axis=0)
             live = np.flatnonzero(best >= best.max() - PRUNE_NATS)
-            at = class_frames(self.hyps[live], self._pivots)  # (G, L, 3)
-            x = np.stack([wrist_under_hypotheses(pose, f) for f in at])
+            x = np.stack([wrist_under_hypotheses(pose, f[live]) for f in self._group_frames])
             train = model_l.log_likelihood_at_poses(
                 grasp, x, lp, ignore, self.finger_sensors, self._groups
             )  # (L, K)

@@ -74,7 +74,6 @@ from activetouch.recognition.pose_belief import (
     PoseBelief,
     PoseParams,
     free_sites_for,
-    has_pivot,
 )
 from activetouch.session.sensors import RecognitionSensors
 from activetouch.storage import atomic_write_bytes
@@ -702,11 +701,10 @@ def _class_shape(mesh: str, mtime_ns: int) -> ClassShape:
     shape = None
     if cache.is_file():
         try:
-            stored = dict(np.load(cache))
-            shape = ClassShape.from_arrays(stored)
+            shape = ClassShape.from_arrays(dict(np.load(cache)))
         except (OSError, ValueError, KeyError):
             log.warning("%s: unreadable, rebuilt", cache)
-        if shape is not None and has_pivot(stored):
+        if shape is not None and shape.pivot is not None:  # this version's pivot stored too
             return shape
     if shape is None:
         # deferred: loads trimesh
