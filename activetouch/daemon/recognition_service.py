@@ -174,12 +174,10 @@ class RecognitionService:
         self._session = session
         self._t0 = time.monotonic()
         self.model: Any = None
-        self._kernel: Any = None
         self.model_desc: str | None = None
         self.model_error: str | None = None
         try:
             self.model = load_trained(model_dir)
-            self._kernel = self.model.classifier.kernel()
             self.model_desc = (
                 f"{model_dir.resolve()} ({', '.join(self.model.class_names)}; "
                 f"dataset {self.model.dataset_checksum[:12]})"
@@ -224,7 +222,7 @@ class RecognitionService:
                 "tree",
                 dataclasses.replace(self.cfg.planner, horizon=1, simulations=2),
                 self.model.observation,
-                self._kernel,
+                self.model.classifier.kernel(),
                 belief,
             )
             state = PlanningState(
