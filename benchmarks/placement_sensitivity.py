@@ -17,11 +17,19 @@ same outcome under every draw.
 
     ACTIVETOUCH_HOME=DIR python benchmarks/placement_sensitivity.py \\
         h_bottle_lip_neck:h_bottle_long_neck h_bowl_foot:h_bowl_shallow [--draws 2] [--json F]
+
+With `--meshes` no grasp is made: at every pose the planner can choose (the model's pooled
+poses) the two meshes predict how far each finger closes (`planning/mesh_lookahead.py`, what
+`planner.policy = "mesh"` plans on), at the trained placement and at a grid of placements
+within the jitter (5 x 5 in x, y, three yaws), and the script counts the poses where the two
+classes' predicted closures differ by more than `--threshold-rad` in some finger: at the
+trained placement, and for every pair of placements of the grid.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -108,6 +116,92 @@ def pair_counts(
     }
 
 
+def jitter_grid(jitter_m: float, jitter_deg: float) -> np.ndarray:
+    """(75, 3) placements dx, dy (m), yaw (rad): 5 x 5 in x and y, three yaws; the trained
+    placement (zero) first."""
+    xy = np.linspace(-jitter_m, jitter_m, 5)
+    yaw = np.deg2rad([-jitter_deg, 0.0, jitter_deg])
+    g = np.stack(np.meshgrid(xy, xy, yaw, indexing="ij"), axis=-1).reshape(-1, 3)
+    zero = np.all(g == 0.0, axis=1)
+    return np.concatenate([g[zero], g[~zero]])
+
+
+def mesh_closures(
+    belief: Any, classes: list[int], poses: np.ndarray, placements: np.ndarray, preshape: float
+) -> np.ndarray:
+    """(C, P, O, 3) proximal angles (rad) at which each finger's first sensor site meets class
+    `classes[c]` standing at `placements[o]`, the hand at training pose `poses[p]` (P, 7)."""
+    from activetouch.models.reflex import ReflexGeometry  # deferred: numba compiles
+    from activetouch.planning import mesh_lookahead as ml
+
+    packed = ml.pack_shapes(belief.shapes)
+    sweeps = ml.finger_sweeps(ReflexGeometry(), preshape, 0.25)
+    rot, trans = ml.wrist_frames(poses, np.zeros(3))
+    sites = np.einsum("pij,fksj->pfksi", rot, sweeps) + trans[:, None, None, None, :]
+    cls = np.repeat(np.asarray(classes, dtype=np.int64), len(placements))
+    hyps = np.tile(placements, (len(classes), 1))
+    support = -np.inf if belief.support_z is None else float(belief.support_z)
+    stops = ml.closure_stops(
+        packed.values,
+        packed.dims,
+        packed.origins,
+        packed.steps,
+        packed.offsets,
+        np.asarray(belief.lifts, dtype=np.float64),
+        cls,
+        np.ascontiguousarray(hyps),
+        np.ascontiguousarray(sites),
+        belief.params.contact_offset_m,
+        support,
+    )  # (P, C * O, 3)
+    angles = (stops + 1.0) * ml.SWEEP_STEP_RAD
+    return angles.reshape(len(poses), len(classes), len(placements), 3).transpose(1, 0, 2, 3)
+
+
+def closure_counts(a: np.ndarray, b: np.ndarray, threshold_rad: float) -> dict[str, int]:
+    """Poses where two classes' predicted closures (P, O, 3; placement 0 the trained one)
+    differ by more than `threshold_rad` in some finger: at the trained placement, and for
+    every pair of placements."""
+    apart = np.abs(a[:, :, None, :] - b[:, None, :, :]).max(axis=-1)  # (P, O, O)
+    return {
+        "poses": len(a),
+        "differ_trained": int((apart[:, 0, 0] > threshold_rad).sum()),
+        "differ_under_draws": int((apart.min(axis=(1, 2)) > threshold_rad).sum()),
+    }
+
+
+def mesh_rows(
+    pairs: list[list[str]], model: Any, library: ObjectLibrary, cfg: Config, args: Any
+) -> list[dict[str, Any]]:
+    # deferred: loads pybullet
+    from activetouch.session.loop import pose_belief_of
+    from activetouch.sim.twin import open_twin
+
+    rc = dataclasses.replace(cfg.recognition, belief="pose")
+    make = pose_belief_of(model, rc, library)
+    om = model.observation
+    poses = np.concatenate([om.pose_xyz, om.pose_quat], axis=1)
+    placements = jitter_grid(args.jitter_m, args.jitter_deg)
+    rows = []
+    for names in pairs:
+        with open_twin(library.get(names[0]), cfg.sim, seed=cfg.sim.seed) as tw:
+            belief = make(tw.support_z)
+        if belief is None:
+            raise ActiveTouchError("--meshes needs the pose belief: every class's mesh")
+        ids = [list(model.class_names).index(n) for n in names]
+        a, b = mesh_closures(belief, ids, poses, placements, cfg.grid.preshape)
+        row = {"a": names[0], "b": names[1], **closure_counts(a, b, args.threshold_rad)}
+        rows.append(row)
+        print(
+            f"{names[0]} vs {names[1]} (meshes): {row['poses']} poses; predicted closures "
+            f"differ by more than {args.threshold_rad:g} rad at the trained placement "
+            f"{row['differ_trained']}, for every pair of placements within +-"
+            f"{args.jitter_m * 1e3:g} mm / +-{args.jitter_deg:g} deg {row['differ_under_draws']}",
+            flush=True,
+        )
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("pairs", nargs="+", help="class pairs A:B")
@@ -115,6 +209,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jitter-m", type=float, default=0.005)
     ap.add_argument("--jitter-deg", type=float, default=3.75)
     ap.add_argument("--threshold", type=float, default=0.3)
+    ap.add_argument("--meshes", action="store_true", help="predicted closures, no grasps")
+    ap.add_argument("--threshold-rad", type=float, default=0.08, help="with --meshes")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-poses", type=int, default=0, help="the first N shared poses (0: all)")
     ap.add_argument("--model")
@@ -129,11 +225,14 @@ def main(argv: list[str] | None = None) -> int:
     dataset = Dataset.open(str(model.meta["dataset"]))
     library = ObjectLibrary(paths.objects_dir(root))
     rows: list[dict[str, Any]] = []
-    for pair in args.pairs:
-        names = pair.split(":")
+    pairs = [pair.split(":") for pair in args.pairs]
+    for pair, names in zip(args.pairs, pairs, strict=True):
         bad = [n for n in names if n not in model.class_names]
         if len(names) != 2 or bad:
             ap.error(f"{pair!r}: give two of the model's classes as A:B (unknown: {bad})")
+    if args.meshes:
+        rows = mesh_rows(pairs, model, library, cfg, args)
+    for names in [] if args.meshes else pairs:
         trained = [dataset.read(n) for n in names]
         shared = sorted(set(trained[0].pose_ids.tolist()) & set(trained[1].pose_ids.tolist()))
         if args.max_poses > 0:
