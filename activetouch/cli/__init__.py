@@ -1,1 +1,2 @@
-"""cli"""
+"""The `activetouch` command: argument parsing and dispatch (main.py), one module per sub-command
+(commands/)."""

@@ -1,1 +1,2 @@
-"""models"""
+"""Robot models: the ReFlex and the BarrettHand (geometry, forward kinematics, tactile sensor
+sites) and their URDF."""

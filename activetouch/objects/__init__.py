@@ -1,1 +1,2 @@
-"""objects"""
+"""The object library: its registry and mesh import (library.py), shape building (shapes.py), the
+paper's objects (paper.py) and the generated hard set (hard.py)."""

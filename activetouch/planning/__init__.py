@@ -1,2 +1,3 @@
-"""Where to grasp next: the observation model p(z'|z,a,y), the MCTS planner and its
-greedy / random baselines."""
+"""Where to grasp next: the training grid, the observation model p(z'|z,a,y), the MCTS planner
+with its greedy / random baselines and the mesh lookahead; motion/ turns an object-frame wrist
+pose into joint motion."""

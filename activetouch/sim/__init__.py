@@ -1,5 +1,6 @@
-"""PyBullet twin: ReFlex hand with tactile sites, table, object library, training collection.
-Implements the same Hand / Arm interfaces as the real drivers.
+"""PyBullet twin: the ReFlex and BarrettHand hands with tactile sites, the floating wrist and
+the Baxter arm, the table and the object, the real robot's errors as options. Implements the
+same Hand / Arm interfaces as the real drivers.
 
 Importing this package does not load PyBullet (a config naming the twin device types must not
 cost that); the modules that use it call `import_pybullet_quietly()` first."""
