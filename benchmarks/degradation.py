@@ -32,7 +32,9 @@ from activetouch.pipelines.evaluation import (
     parse_seeds,
     run_all,
 )
+from activetouch.pipelines.journal import RunJournal
 from activetouch.session.local import load_trained, model_path
+from activetouch.storage import atomic_write_text
 
 # name -> (what it is, settings). The placement levels are the bounds (2 cm, 15 deg),
 # half of them and the larger ones (3 cm, 30 deg: the pose belief's grid); sensor levels are
@@ -293,6 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         runs: list[dict[str, Any]] = []
         levels: list[str] = []
         for f in args.from_json.split(","):
+            if not Path(f).is_file():
+                ap.error(f"--from-json: no file {f}")
             raw = Path(f).read_bytes()
             doc = json.loads(gzip.decompress(raw) if f.endswith(".gz") else raw)
             runs += doc["runs"]
@@ -325,12 +329,17 @@ def main(argv: list[str] | None = None) -> int:
         )
         jobs += js
         owner += [level] * len(js)
+    # With --json, each run is kept beside it as it finishes: the same command resumes.
+    journal = RunJournal(Path(args.json + ".runs.jsonl")) if args.json else None
+    if journal is not None and len(journal):
+        print(f"resuming: {len(journal)} runs already in {journal.path}", file=sys.stderr)
     runs = run_all(
         jobs,
         args.workers,
         lambda i, n: print(f"\r{i}/{n} runs", end="", file=sys.stderr, flush=True),
         args.executor,
         args.address,
+        journal,
     )
     print(file=sys.stderr)
     public = [
@@ -339,7 +348,9 @@ def main(argv: list[str] | None = None) -> int:
     ]
     if args.json:
         doc = {"levels": levels, "max_moves": args.max_moves, "argv": argv or sys.argv[1:]}
-        Path(args.json).write_text(json.dumps({**doc, "runs": public}) + "\n")
+        atomic_write_text(Path(args.json), json.dumps({**doc, "runs": public}) + "\n")
+        if journal is not None:
+            journal.remove()
     print_table(public, levels, policies, args.max_moves)
     print_headroom(public, levels, args.max_moves)
     print_per_object(public, levels, policies)

@@ -6,6 +6,7 @@ Moves are counted in grasps, the first random grasp included; `None` means never
 from __future__ import annotations
 
 import concurrent.futures as cf
+import hashlib
 import multiprocessing as mp
 import os
 from collections.abc import Callable
@@ -20,6 +21,7 @@ from activetouch.config import SIM_ERROR_SETTINGS, Config, SimConfig
 from activetouch.errors import ConfigError
 from activetouch.objects.library import ObjectLibrary
 from activetouch.pipelines.executors import check_executor, exit_with_parent, ray_map
+from activetouch.pipelines.journal import RunJournal
 from activetouch.recognition.distances import inner_product_distance
 from activetouch.recognition.faults import draw_faulty_sensors
 
@@ -241,55 +243,86 @@ def run_job(job: Job) -> dict[str, Any]:
     }
 
 
+def job_key(job: Job) -> str:
+    """A digest of everything a run's outcome depends on but the code: the model's and the
+    object's files as they are now, the object, policy, seed, budget and every setting."""
+    model = Path(job.model_dir) / "model.json"
+    mesh = ObjectLibrary(job.library_root).get(job.object_name).visual_mesh
+
+    def stamp(f: Path) -> tuple[str, int, int]:
+        st = f.stat()
+        return str(f.resolve()), st.st_mtime_ns, st.st_size
+
+    ident = (stamp(model), stamp(mesh), job.object_name, job.policy, job.seed, job.max_moves)
+    return hashlib.sha256(repr((*ident, job.cfg)).encode()).hexdigest()[:32]
+
+
 def run_all(
     jobs: list[Job],
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     executor: str = "local",
     address: str | None = None,
+    journal: RunJournal | None = None,
 ) -> list[dict[str, Any]]:
     """Every job's record, in the order of `jobs`. `executor`: "local" (this machine's
-    processes, `workers` of them) or "ray" (`run_all_ray`)."""
+    processes, `workers` of them) or "ray" (`run_all_ray`). `journal`: each run is kept there
+    as it finishes, and runs it already holds are not made again (a resumed evaluation)."""
     check_executor(executor, address)
-    if executor == "ray":
-        return run_all_ray(jobs, address, progress, workers)
-    workers = max(1, min(workers or os.cpu_count() or 1, len(jobs)))
-    out: list[dict[str, Any]] = []
-    if workers == 1:
-        for i, j in enumerate(jobs, 1):
-            out.append(run_job(j))
-            if progress:
-                progress(i, len(jobs))
-        return out
-    ctx = mp.get_context("spawn")  # PyBullet and numba state do not survive fork()
-    with cf.ProcessPoolExecutor(
-        workers, mp_context=ctx, initializer=exit_with_parent, initargs=(os.getpid(),)
-    ) as pool:
-        futures = [pool.submit(run_job, j) for j in jobs]
-        for i, _ in enumerate(cf.as_completed(futures), 1):
-            if progress:
-                progress(i, len(jobs))
-        out = [f.result() for f in futures]
-    return out
+    keys = [job_key(j) for j in jobs] if journal is not None else []
+    out: list[dict[str, Any] | None] = [None] * len(jobs)
+    if journal is not None:
+        out = [journal.get(k) for k in keys]
+    todo = [i for i, r in enumerate(out) if r is None]
+    done = len(jobs) - len(todo)
+    if progress and done:
+        progress(done, len(jobs))
+
+    def finished(i: int, record: dict[str, Any]) -> None:
+        nonlocal done
+        out[i] = record
+        if journal is not None:
+            journal.add(keys[i], record)
+        done += 1
+        if progress:
+            progress(done, len(jobs))
+
+    workers = max(1, min(workers or os.cpu_count() or 1, len(todo) or 1))
+    if not todo:
+        pass
+    elif executor == "ray":
+        run_all_ray([jobs[i] for i in todo], address, workers, lambda k, r: finished(todo[k], r))
+    elif workers == 1:
+        for i in todo:
+            finished(i, run_job(jobs[i]))
+    else:
+        ctx = mp.get_context("spawn")  # PyBullet and numba state do not survive fork()
+        with cf.ProcessPoolExecutor(
+            workers, mp_context=ctx, initializer=exit_with_parent, initargs=(os.getpid(),)
+        ) as pool:
+            futures = {pool.submit(run_job, jobs[i]): i for i in todo}
+            try:
+                for f in cf.as_completed(futures):
+                    finished(futures[f], f.result())
+            except BaseException:  # a failed run or Ctrl-C: the finished ones are kept
+                pool.shutdown(wait=False, cancel_futures=True)
+                raise
+    return [r for r in out if r is not None]
 
 
 def run_all_ray(
     jobs: list[Job],
-    address: str | None = None,
-    progress: Callable[[int, int], None] | None = None,
-    workers: int | None = None,
-) -> list[dict[str, Any]]:
+    address: str | None,
+    workers: int | None,
+    finished: Callable[[int, dict[str, Any]], None],
+) -> None:
     """`run_all` on Ray (executors.ray_map): one task per job, each worker keeping the model
-    it loaded, as a local pool worker does. `address`: a running cluster ("auto" on one of
-    its nodes, "ray://head:10001"); None starts a Ray here with `workers` CPUs. Records come
-    back in job order, so results.json is the local executor's."""
-    out: list[dict[str, Any] | None] = [None] * len(jobs)
+    it loaded, as a local pool worker does; `finished(index, record)` as each comes back.
+    `address`: a running cluster ("auto" on one of its nodes, "ray://head:10001"); None
+    starts a Ray here with `workers` CPUs."""
     calls = [(j,) for j in jobs]
-    for done, (i, record) in enumerate(ray_map(run_job, calls, address, workers), 1):
-        out[i] = record
-        if progress:
-            progress(done, len(jobs))
-    return [r for r in out if r is not None]
+    for i, record in ray_map(run_job, calls, address, workers):
+        finished(i, record)
 
 
 def _median(values: list[int | None], budget: int) -> float | None:

@@ -25,9 +25,13 @@ from activetouch.pipelines.evaluation import (
     summarise,
 )
 from activetouch.pipelines.executors import add_executor_options, check_executor
+from activetouch.pipelines.journal import RunJournal
 from activetouch.pipelines.report import write_report
 from activetouch.planning.policies import POLICY_NAMES
 from activetouch.session.local import check_request, load_trained, model_path
+
+# In --out while an evaluation runs: each finished run (`RunJournal`); gone once the report is.
+JOURNAL = "runs.jsonl"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -118,6 +122,13 @@ def evaluate(
         raise ConfigError(f"--out {out}: exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
     jobs = make_jobs(model_dir, library, objects, policies, seeds, budget, cfg)
+    # Each run is kept as it finishes; the same command after a crash or Ctrl-C resumes.
+    journal = RunJournal(out / JOURNAL)
+    if len(journal):
+        console.print(
+            f"resuming: {len(journal)} runs of an evaluation cut short are in {journal.path}; "
+            "those of these runs are not made again"
+        )
     t0 = time.perf_counter()
     with Progress(
         TextColumn("recognitions"),
@@ -128,7 +139,12 @@ def evaluate(
     ) as bar:
         task = bar.add_task("eval", total=len(jobs))
         runs = run_all(
-            jobs, workers, lambda done, _: bar.update(task, completed=done), executor, address
+            jobs,
+            workers,
+            lambda done, _: bar.update(task, completed=done),
+            executor,
+            address,
+            journal,
         )
     summary = summarise(runs, budget)
     summary["seconds"] = time.perf_counter() - t0
@@ -139,6 +155,7 @@ def evaluate(
     if model.class_histograms is not None:
         class_hist = dict(zip(model.class_names, model.class_histograms, strict=True))
     report = write_report(out, runs, summary, command, class_hist, model.spec.bins)
+    journal.remove()  # every run is in results.json now
     for p in policies:
         s = summary["per_policy"][p]
         console.print(
