@@ -130,32 +130,17 @@ def mesh_closures(
     belief: Any, classes: list[int], poses: np.ndarray, placements: np.ndarray, preshape: float
 ) -> np.ndarray:
     """(C, P, O, 3) proximal angles (rad) at which each finger's first sensor site meets class
-    `classes[c]` standing at `placements[o]`, the hand at training pose `poses[p]` (P, 7)."""
-    from activetouch.models.reflex import ReflexGeometry  # deferred: numba compiles
-    from activetouch.planning import mesh_lookahead as ml
+    `classes[c]` moved by `placements[o]` (about its pivot, as the belief moves it), the hand
+    at training pose `poses[p]` (P, 7)."""
+    # deferred: numba compiles the sweeps
+    from activetouch.planning.mesh_lookahead import predicted_closures
+    from activetouch.recognition.pose_belief import class_frames
 
-    packed = ml.pack_shapes(belief.shapes)
-    sweeps = ml.finger_sweeps(ReflexGeometry(), preshape, 0.25)
-    rot, trans = ml.wrist_frames(poses, np.zeros(3))
-    sites = np.einsum("pij,fksj->pfksi", rot, sweeps) + trans[:, None, None, None, :]
-    cls = np.repeat(np.asarray(classes, dtype=np.int64), len(placements))
-    hyps = np.tile(placements, (len(classes), 1))
-    support = -np.inf if belief.support_z is None else float(belief.support_z)
-    stops = ml.closure_stops(
-        packed.values,
-        packed.dims,
-        packed.origins,
-        packed.steps,
-        packed.offsets,
-        np.asarray(belief.lifts, dtype=np.float64),
-        cls,
-        np.ascontiguousarray(hyps),
-        np.ascontiguousarray(sites),
-        belief.params.contact_offset_m,
-        support,
-    )  # (P, C * O, 3)
-    angles = (stops + 1.0) * ml.SWEEP_STEP_RAD
-    return angles.reshape(len(poses), len(classes), len(placements), 3).transpose(1, 0, 2, 3)
+    ids = np.asarray(classes, dtype=np.int64)
+    frames = class_frames(placements, belief.pivots[ids]).reshape(-1, 3)  # class-major
+    cls = np.repeat(ids, len(placements))
+    angles = predicted_closures(belief, poses, preshape, np.zeros(3), cls, frames)
+    return angles.reshape(len(poses), len(ids), len(placements), 3).transpose(1, 0, 2, 3)
 
 
 def closure_counts(a: np.ndarray, b: np.ndarray, threshold_rad: float) -> dict[str, int]:

@@ -202,6 +202,46 @@ class PlacementBelief:
     preshape: float
 
 
+def predicted_closures(
+    belief: PoseBelief,
+    poses: np.ndarray,
+    preshape: float,
+    offset: np.ndarray,
+    cls: np.ndarray,
+    frames: np.ndarray,
+    *,
+    coupling: float = 0.25,
+    geom: ReflexGeometry | None = None,
+    packed: PackedShapes | None = None,
+) -> np.ndarray:
+    """(P, M, 3) the proximal angle (rad) at which each finger's first sensor site meets class
+    `cls[m]` with its frame at `frames[m]` (dx, dy, yaw; `belief.frames` rows), the hand at
+    each of `poses` (P, 7, training poses) placed on the object believed at `offset`;
+    `SWEEP_LIMIT_RAD` where it closes on nothing. `packed`: `pack_shapes(belief.shapes)`."""
+    packed = packed or pack_shapes(belief.shapes)
+    sweeps = finger_sweeps(geom or ReflexGeometry(), preshape, coupling)
+    rot, trans = wrist_frames(poses, offset)
+    # every pose's sweeps in the nominal object frame, once for all hypotheses
+    sites = np.ascontiguousarray(
+        np.einsum("pij,fksj->pfksi", rot, sweeps) + trans[:, None, None, None, :]
+    )
+    support = -np.inf if belief.support_z is None else float(belief.support_z)
+    stops = closure_stops(
+        packed.values,
+        packed.dims,
+        packed.origins,
+        packed.steps,
+        packed.offsets,
+        np.asarray(belief.lifts, dtype=np.float64),
+        np.asarray(cls, dtype=np.int64),
+        np.ascontiguousarray(frames, dtype=np.float64),
+        sites,
+        belief.params.contact_offset_m,
+        support,
+    )
+    return (stops + 1.0) * SWEEP_STEP_RAD
+
+
 def predicted_values(
     belief: PoseBelief,
     poses: np.ndarray,
@@ -218,28 +258,17 @@ def predicted_values(
     probability now) on `belief`'s `hypotheses` likeliest (class, placement) pairs. `packed`:
     `pack_shapes(belief.shapes)`, if the caller keeps it."""
     cls, hidx, w = top_hypotheses(belief.log_b, hypotheses)
-    packed = packed or pack_shapes(belief.shapes)
-    sweeps = finger_sweeps(geom or ReflexGeometry(), preshape, coupling)
-    rot, trans = wrist_frames(poses, offset)
-    # every pose's sweeps in the nominal object frame, once for all hypotheses
-    sites = np.ascontiguousarray(
-        np.einsum("pij,fksj->pfksi", rot, sweeps) + trans[:, None, None, None, :]
-    )
-    support = -np.inf if belief.support_z is None else float(belief.support_z)
-    stops = closure_stops(
-        packed.values,
-        packed.dims,
-        packed.origins,
-        packed.steps,
-        packed.offsets,
-        np.asarray(belief.lifts, dtype=np.float64),
+    angles = predicted_closures(
+        belief,
+        poses,
+        preshape,
+        offset,
         cls,
-        np.ascontiguousarray(belief.frames[cls, hidx]),
-        sites,
-        belief.params.contact_offset_m,
-        support,
+        belief.frames[cls, hidx],
+        coupling=coupling,
+        geom=geom,
+        packed=packed,
     )
-    angles = (stops + 1.0) * SWEEP_STEP_RAD
     v = expected_accuracy(angles, w, cls, len(belief.shapes), sigma_rad)
     now = np.bincount(cls, weights=w, minlength=len(belief.shapes)).max()
     return v, float(now)
