@@ -270,9 +270,9 @@ def run_all(
     as it finishes, and runs it already holds are not made again (a resumed evaluation)."""
     check_executor(executor, address)
     keys = [job_key(j) for j in jobs] if journal is not None else []
-    out: list[dict[str, Any] | None] = [None] * len(jobs)
-    if journal is not None:
-        out = [journal.get(k) for k in keys]
+    out: list[dict[str, Any] | None] = (
+        [journal.get(k) for k in keys] if journal is not None else [None] * len(jobs)
+    )
     todo = [i for i, r in enumerate(out) if r is None]
     done = len(jobs) - len(todo)
     if progress and done:
@@ -287,7 +287,7 @@ def run_all(
         if progress:
             progress(done, len(jobs))
 
-    workers = max(1, min(workers or os.cpu_count() or 1, len(todo) or 1))
+    workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
     if not todo:
         pass
     elif executor == "ray":
